@@ -1,0 +1,1 @@
+//! Acquisition: cameras, calibration, capture planning and runs, HDR, rectification.

@@ -1,0 +1,1 @@
+//! The quasi-homogeneous material model: dipole, fitting, file format, report.

@@ -1,0 +1,1 @@
+//! Rendering arbitrary meshes with an acquired material model.

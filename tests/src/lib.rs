@@ -1,0 +1,1 @@
+//! Cross-crate tests: the whole pipeline on the simulated rig, faults.
