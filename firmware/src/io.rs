@@ -19,8 +19,12 @@ pub struct Inputs {
 
 impl Inputs {
     /// Everything safe, no switch actuated.
-    pub const SAFE: Inputs =
-        Inputs { home: [false, false], arc_limit_ok: true, interlock_closed: true, estop_pressed: false };
+    pub const SAFE: Inputs = Inputs {
+        home: [false, false],
+        arc_limit_ok: true,
+        interlock_closed: true,
+        estop_pressed: false,
+    };
 }
 
 /// Outputs and inputs of the rig.

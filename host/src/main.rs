@@ -1,0 +1,35 @@
+//! `qhm`: measure quasi-homogeneous materials with the capture rig (or its
+//! simulation) and render objects made of them. Parsing and dispatch only;
+//! each command lives in `cmd/`.
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+mod cli;
+mod cmd;
+
+fn main() -> ExitCode {
+    let cli = cli::Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("QHM_LOG")
+                .unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match cli::run(cli) {
+        Ok(code) => code,
+        Err(err) => {
+            // Broken pipes (`qhm ... | head`) are not errors.
+            if err.chain().any(|e| {
+                e.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) {
+                return ExitCode::SUCCESS;
+            }
+            eprintln!("qhm: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
