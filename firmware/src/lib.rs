@@ -22,6 +22,11 @@ pub mod io;
 pub mod profile;
 pub mod tx;
 
+#[cfg(test)]
+mod controller_tests;
+#[cfg(test)]
+mod testkit;
+
 pub use controller::Controller;
 pub use io::{Inputs, Io};
 
