@@ -1,0 +1,232 @@
+//! Running the emulated rig in real time (or a multiple of it) behind an
+//! in-process byte stream.
+//!
+//! A [`SimPort`] lives behind a [`RigHandle`] (shared, locked). A
+//! [`VirtualClock`] maps wall time to virtual time: `virtual = wall * speed`,
+//! so `speed = 1.0` is real time and `speed = 20.0` runs the rig 20 times
+//! faster (the host must then heartbeat 20 times as often in wall time: the
+//! MCU's 250 ms heartbeat timeout is virtual time).
+//!
+//! [`spawn_in_process`] returns the host's end of a `tokio::io::duplex` pair
+//! (`AsyncRead + AsyncWrite`) and spawns a tokio task that serves the other
+//! end: bytes the host writes go onto the modelled line, bytes the MCU sends
+//! come back at the baud rate, with the configured faults. The task ends when
+//! the host drops its end, on [`RigHandle::shutdown`], or on a disconnect
+//! fault (the host then reads EOF).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+use tokio::sync::Notify;
+use tokio::sync::mpsc::UnboundedReceiver;
+
+use crate::peripherals::{RigState, TriggerEvent};
+use crate::port::SimPort;
+use crate::{SimConfig, SimError};
+
+/// Longest wall time a driver sleeps without looking at the rig: bounds how
+/// late a timed MCU reply (motion done, sweep step) leaves the emulator.
+pub const MAX_IDLE_WALL: Duration = Duration::from_millis(1);
+
+/// Wall time to virtual time.
+#[derive(Debug, Clone, Copy)]
+pub struct VirtualClock {
+    start: Instant,
+    start_us: u64,
+    speed: f64,
+}
+
+impl VirtualClock {
+    /// A clock that reads `start_us` now and runs `speed` times faster than the wall.
+    pub fn new(start_us: u64, speed: f64) -> Self {
+        Self {
+            start: Instant::now(),
+            start_us,
+            speed,
+        }
+    }
+
+    pub fn now_us(&self) -> u64 {
+        self.start_us + (self.start.elapsed().as_secs_f64() * 1e6 * self.speed) as u64
+    }
+
+    pub fn speed(&self) -> f64 {
+        self.speed
+    }
+
+    /// Wall time until the virtual clock reads `t_us` (zero if past).
+    pub fn wall_until(&self, t_us: u64) -> Duration {
+        let now = self.now_us();
+        Duration::from_secs_f64(t_us.saturating_sub(now) as f64 * 1e-6 / self.speed)
+    }
+}
+
+struct Shared {
+    port: Mutex<SimPort>,
+    clock: VirtualClock,
+    stop: AtomicBool,
+    wake: Notify,
+}
+
+/// Shared access to a rig that a driver runs in real time. Cheap to clone.
+#[derive(Clone)]
+pub struct RigHandle {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for RigHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RigHandle")
+            .field("speed", &self.shared.clock.speed)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RigHandle {
+    pub(crate) fn new(port: SimPort, speed: f64) -> Self {
+        let clock = VirtualClock::new(port.now_us(), speed);
+        Self {
+            shared: Arc::new(Shared {
+                port: Mutex::new(port),
+                clock,
+                stop: AtomicBool::new(false),
+                wake: Notify::new(),
+            }),
+        }
+    }
+
+    /// Lock the port after catching it up with the clock.
+    fn lock(&self) -> MutexGuard<'_, SimPort> {
+        // A panic while locked leaves a consistent SimPort (every method
+        // finishes its state change before it can panic), so go on.
+        let mut port = self.shared.port.lock().unwrap_or_else(|e| e.into_inner());
+        let now = self.shared.clock.now_us();
+        port.advance_to(now);
+        port
+    }
+
+    /// Run `f` on the port at the current virtual time (tests: inspect the
+    /// rig, change inputs, clear history). Keep it short: the rig is paused.
+    pub fn with<R>(&self, f: impl FnOnce(&mut SimPort) -> R) -> R {
+        let r = f(&mut self.lock());
+        self.shared.wake.notify_one();
+        r
+    }
+
+    /// The physical rig state now.
+    pub fn rig_state(&self) -> RigState {
+        self.with(|p| p.rig().rig_state())
+    }
+
+    /// Subscribe to camera trigger pulses (see [`TriggerEvent`];
+    /// `recv().await` from async code, `blocking_recv()` from threads).
+    pub fn subscribe_triggers(&self) -> UnboundedReceiver<TriggerEvent> {
+        self.with(|p| p.rig_mut().subscribe_triggers())
+    }
+
+    pub fn set_interlock(&self, closed: bool) {
+        self.with(|p| p.rig_mut().set_interlock(closed));
+    }
+
+    pub fn set_estop(&self, pressed: bool) {
+        self.with(|p| p.rig_mut().set_estop(pressed));
+    }
+
+    /// Reset the MCU now (fault injection).
+    pub fn reset_mcu(&self) {
+        self.with(|p| {
+            p.rig_mut().reset_mcu(false);
+        });
+    }
+
+    /// Close the link now: the host reads EOF (in-process) or a hangup (pty).
+    pub fn disconnect(&self) {
+        self.with(|p| p.disconnect());
+    }
+
+    /// Virtual time now, µs.
+    pub fn now_us(&self) -> u64 {
+        self.shared.clock.now_us()
+    }
+
+    pub fn speed(&self) -> f64 {
+        self.shared.clock.speed()
+    }
+
+    /// Stop the driver (the host's end then reads EOF or hangs up).
+    pub fn shutdown(&self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        self.shared.wake.notify_one();
+    }
+
+    pub(crate) fn stopped(&self) -> bool {
+        self.shared.stop.load(Ordering::SeqCst)
+    }
+
+    /// Advance to now; return what reached the host, when to look again
+    /// (wall), and whether the link is closed.
+    pub(crate) fn service(&self) -> (Vec<u8>, Duration, bool) {
+        let mut port = self.lock();
+        let out = port.host_read();
+        let next = port.next_event_us();
+        let closed = port.is_disconnected();
+        drop(port);
+        let wait = next
+            .map(|t| self.shared.clock.wall_until(t))
+            .unwrap_or(MAX_IDLE_WALL)
+            .min(MAX_IDLE_WALL);
+        (out, wait, closed)
+    }
+
+    /// The host wrote these bytes now.
+    pub(crate) fn host_wrote(&self, bytes: &[u8]) {
+        self.lock().host_write(bytes);
+    }
+
+    pub(crate) async fn woken(&self) {
+        self.shared.wake.notified().await
+    }
+}
+
+/// Capacity of each direction of the in-process stream, bytes.
+const DUPLEX_CAPACITY: usize = 64 * 1024;
+
+/// Start an emulated rig behind an in-process stream. Must be called within
+/// a tokio runtime (it spawns the serving task). Returns the host's end and
+/// a handle on the rig.
+pub fn spawn_in_process(cfg: &SimConfig) -> Result<(DuplexStream, RigHandle), SimError> {
+    cfg.validate()?;
+    let port = SimPort::new(cfg.rig.clone(), cfg.link)?;
+    let handle = RigHandle::new(port, cfg.speed);
+    let (host_end, sim_end) = tokio::io::duplex(DUPLEX_CAPACITY);
+    let runtime = tokio::runtime::Handle::try_current().map_err(|_| SimError::NoRuntime)?;
+    runtime.spawn(serve_stream(sim_end, handle.clone()));
+    Ok((host_end, handle))
+}
+
+/// Serve the rig on one end of a byte stream until it closes.
+async fn serve_stream(stream: DuplexStream, handle: RigHandle) {
+    let (mut rd, mut wr) = tokio::io::split(stream);
+    let mut buf = [0u8; 1024];
+    while !handle.stopped() {
+        let (out, wait, closed) = handle.service();
+        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+            break;
+        }
+        if closed {
+            break;
+        }
+        tokio::select! {
+            r = rd.read(&mut buf) => match r {
+                Ok(0) | Err(_) => break,
+                Ok(n) => handle.host_wrote(&buf[..n]),
+            },
+            _ = tokio::time::sleep(wait) => {}
+            _ = handle.woken() => {}
+        }
+    }
+    // Dropping both halves closes the host's end: it reads EOF.
+    let _ = wr.shutdown().await;
+}
