@@ -1,0 +1,549 @@
+//! Monte Carlo light transport: photons from a laser stripe, a lamp or a
+//! pencil beam enter the sample through its rough dielectric top, random-walk
+//! through the volume (free flights sampled against s_t, delta tracking with
+//! the majorant in heterogeneous volumes, isotropic scattering with reduced
+//! coefficients, analog absorption), and leave or die at the black sides and
+//! bottom. Every surface event is splatted by next-event estimation into every
+//! camera: the BSDF towards the camera, times visibility against the height
+//! field, over the pixel's solid angle (light tracing, pbrt's
+//! `LightPathIntegrator`). Nothing here uses a diffusion approximation.
+//!
+//! Determinism: photons go in fixed blocks, each with its own RNG stream;
+//! splats add as 64-bit fixed point with atomics, so the sum (and tallies,
+//! which are integers) is the same for any thread count and schedule.
+
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+
+use crate::medium::Volume;
+use crate::microfacet::{Dielectric, TransportMode};
+use crate::rng::{Rng, mix64};
+use crate::sample::{COLOUR_PATTERN, TargetDesc, colour_patch_at};
+use crate::surface::HeightField;
+
+/// Photons per RNG stream / work item.
+pub const BLOCK: u64 = 2048;
+/// A photon that scatters this often is counted as truncated.
+pub const MAX_EVENTS: u32 = 1_000_000;
+/// Fixed-point quanta per unit of normalised splat.
+const QUANTUM: f64 = 4_294_967_296.0;
+
+/// What the top surface is.
+#[derive(Debug, Clone)]
+pub enum SurfaceKind {
+    /// A sample: rough dielectric over the volume.
+    Dielectric(Dielectric),
+    /// A calibration target: opaque Lambertian.
+    Lambertian(TargetDesc),
+}
+
+/// The built scene the walks run in.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub surface: HeightField,
+    pub kind: SurfaceKind,
+    pub volume: Option<Volume>,
+}
+
+impl Scene {
+    /// Lambertian reflectance of a target at (x, y).
+    pub fn target_albedo(&self, x: f32, y: f32, ch: usize) -> f32 {
+        let SurfaceKind::Lambertian(t) = &self.kind else {
+            return 0.0;
+        };
+        let v = match t {
+            TargetDesc::Checkerboard {
+                square_mm, albedo, ..
+            } => {
+                let i =
+                    (x as f64 / square_mm).floor() as i64 + (y as f64 / square_mm).floor() as i64;
+                albedo[i.rem_euclid(2) as usize]
+            }
+            TargetDesc::ColourPattern { patch_mm } => {
+                match colour_patch_at(x as f64, y as f64, *patch_mm) {
+                    Some(k) => COLOUR_PATTERN[k][ch],
+                    None => 0.02, // black mount around the chart
+                }
+            }
+            TargetDesc::White { albedo, .. } => *albedo,
+            TargetDesc::TwoHeight { albedo, .. } => *albedo,
+        };
+        v as f32
+    }
+}
+
+/// A camera prepared for splatting, in the sample's frame.
+#[derive(Debug, Clone)]
+pub struct SplatCamera {
+    pub pos: Vec3,
+    /// World(sample)-to-camera rotation.
+    pub rot: Mat3,
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub k1: f32,
+    pub k2: f32,
+    pub width: u32,
+    pub height: u32,
+    /// Divides splats so they are O(1): fx fy / 450^2.
+    pub norm: f32,
+}
+
+impl SplatCamera {
+    /// Pixel index and 1 / (pixel solid angle * distance^2) for a point.
+    #[inline]
+    fn project(&self, p: Vec3) -> Option<(usize, f32, Vec3)> {
+        let v = p - self.pos;
+        let pc = self.rot * v;
+        if pc.z <= 1e-3 {
+            return None;
+        }
+        let (x, y) = (pc.x / pc.z, pc.y / pc.z);
+        let r2 = x * x + y * y;
+        let dist = 1.0 + self.k1 * r2 + self.k2 * r2 * r2;
+        let u = self.fx * x * dist + self.cx;
+        let w = self.fy * y * dist + self.cy;
+        if !(u >= 0.0 && w >= 0.0 && u < self.width as f32 && w < self.height as f32) {
+            return None;
+        }
+        let d2 = v.length_squared();
+        let d = d2.sqrt();
+        let cos_c = pc.z / d;
+        // pixel solid angle: cos^3 / (fx fy) (pinhole; distortion's area change neglected)
+        let inv = self.fx * self.fy / (cos_c * cos_c * cos_c * d2);
+        Some(((w as usize) * self.width as usize + u as usize, inv, -v / d))
+    }
+}
+
+/// Where the photons come from.
+#[derive(Debug, Clone, Copy)]
+pub enum Source {
+    /// A laser fan from `origin` onto the segment centre + s dir, |s| <= length/2.
+    Stripe {
+        origin: Vec3,
+        centre: Vec3,
+        dir: Vec3,
+        length: f32,
+    },
+    /// A directional lamp; `to_lamp` is the unit direction towards it. Photons
+    /// fall uniformly (in horizontal area) over the sample footprint.
+    Lamp { to_lamp: Vec3 },
+    /// A thin beam.
+    Pencil { origin: Vec3, dir: Vec3 },
+}
+
+/// How photons ended, counted (integers, so sums are exact).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Tally {
+    pub launched: u64,
+    /// Missed the sample (fell on the black turntable).
+    pub missed: u64,
+    /// Reflected by the top surface on entry (specular / Lambertian target).
+    pub reflected: u64,
+    /// Left through the top after subsurface transport.
+    pub exited: u64,
+    /// Absorbed in the volume (or by a target).
+    pub absorbed: u64,
+    /// Lost at the black sides and bottom.
+    pub escaped: u64,
+    /// Killed at the rough boundary by microfacet shadowing-masking.
+    pub surface_loss: u64,
+    /// Scattered more than MAX_EVENTS times.
+    pub truncated: u64,
+    /// Real collisions (scattering or absorption).
+    pub events: u64,
+    /// Null collisions of delta tracking.
+    pub null_events: u64,
+}
+
+impl Tally {
+    pub fn add(mut self, o: Tally) -> Tally {
+        self.launched += o.launched;
+        self.missed += o.missed;
+        self.reflected += o.reflected;
+        self.exited += o.exited;
+        self.absorbed += o.absorbed;
+        self.escaped += o.escaped;
+        self.surface_loss += o.surface_loss;
+        self.truncated += o.truncated;
+        self.events += o.events;
+        self.null_events += o.null_events;
+        self
+    }
+    /// Every launched photon is accounted for exactly once.
+    pub fn balanced(&self) -> bool {
+        self.launched
+            == self.missed
+                + self.reflected
+                + self.exited
+                + self.absorbed
+                + self.escaped
+                + self.surface_loss
+                + self.truncated
+    }
+}
+
+/// A histogram of where photons exit the top, on a square grid centred at
+/// the origin (for tests and profiles; integer counts).
+#[derive(Debug)]
+pub struct ExitGrid {
+    pub n: usize,
+    pub cell: f32,
+    pub counts: Vec<AtomicU32>,
+}
+
+impl ExitGrid {
+    pub fn new(n: usize, cell: f32) -> Self {
+        ExitGrid {
+            n,
+            cell,
+            counts: (0..n * n).map(|_| AtomicU32::new(0)).collect(),
+        }
+    }
+    fn record(&self, p: Vec3) {
+        let half = self.n as f32 * self.cell / 2.0;
+        let (i, j) = ((p.x + half) / self.cell, (p.y + half) / self.cell);
+        if i >= 0.0 && j >= 0.0 && (i as usize) < self.n && (j as usize) < self.n {
+            self.counts[j as usize * self.n + i as usize].fetch_add(1, Ordering::Relaxed);
+        }
+    }
+    /// Counts as plain numbers, row-major in y.
+    pub fn values(&self) -> Vec<u32> {
+        self.counts
+            .iter()
+            .map(|c| c.load(Ordering::Relaxed))
+            .collect()
+    }
+}
+
+/// Fixed-point accumulation images for one channel, one per camera.
+pub struct Accum {
+    pub images: Vec<Vec<AtomicU64>>,
+}
+
+impl Accum {
+    pub fn new(cams: &[SplatCamera]) -> Self {
+        Accum {
+            images: cams
+                .iter()
+                .map(|c| {
+                    (0..(c.width as usize * c.height as usize))
+                        .map(|_| AtomicU64::new(0))
+                        .collect()
+                })
+                .collect(),
+        }
+    }
+    /// Unnormalised sums back to floats (multiply by photon flux outside).
+    pub fn to_f64(&self, k: usize, cam: &SplatCamera) -> impl Iterator<Item = f64> + '_ {
+        let scale = cam.norm as f64 / QUANTUM;
+        self.images[k]
+            .iter()
+            .map(move |a| a.load(Ordering::Relaxed) as f64 * scale)
+    }
+}
+
+/// One transport run: a source, a channel, and where splats go.
+pub struct Pass<'a> {
+    pub scene: &'a Scene,
+    pub cams: &'a [SplatCamera],
+    pub accum: Option<&'a Accum>,
+    pub exits: Option<&'a ExitGrid>,
+    pub channel: usize,
+}
+
+struct Local {
+    frame: Option<(Vec3, Vec3, Vec3)>,
+}
+
+impl Local {
+    /// Orthonormal frame around n (Duff et al. 2017); None when n = +z.
+    fn new(n: Vec3) -> Local {
+        if n.z > 0.999_999 {
+            return Local { frame: None };
+        }
+        let sign = 1.0f32.copysign(n.z);
+        let a = -1.0 / (sign + n.z);
+        let b = n.x * n.y * a;
+        let s = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+        let t = Vec3::new(b, sign + n.y * n.y * a, -n.y);
+        Local {
+            frame: Some((s, t, n)),
+        }
+    }
+    #[inline]
+    fn to_local(&self, v: Vec3) -> Vec3 {
+        match self.frame {
+            None => v,
+            Some((s, t, n)) => Vec3::new(v.dot(s), v.dot(t), v.dot(n)),
+        }
+    }
+    #[inline]
+    fn to_world(&self, v: Vec3) -> Vec3 {
+        match self.frame {
+            None => v,
+            Some((s, t, n)) => s * v.x + t * v.y + n * v.z,
+        }
+    }
+}
+
+/// Uniform direction on the sphere, paired with `uniform_sphere_pdf`.
+#[inline(always)]
+pub fn sample_uniform_sphere(u: [f32; 2]) -> Vec3 {
+    let z = 1.0 - 2.0 * u[0];
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let (s, c) = (std::f32::consts::TAU * u[1]).sin_cos();
+    Vec3::new(r * c, r * s, z)
+}
+
+pub fn uniform_sphere_pdf() -> f32 {
+    1.0 / (4.0 * std::f32::consts::PI)
+}
+
+impl Pass<'_> {
+    /// Splat one surface event into every camera: `bsdf(wi_local) * cos`.
+    #[inline]
+    fn splat(&self, x: Vec3, local: &Local, f: impl Fn(Vec3) -> f32) {
+        let Some(accum) = self.accum else { return };
+        for (k, cam) in self.cams.iter().enumerate() {
+            let Some((px, inv, wc)) = cam.project(x) else {
+                continue;
+            };
+            let wl = local.to_local(wc);
+            if wl.z <= 0.0 {
+                continue;
+            }
+            let v = f(wl) * wl.z * inv / cam.norm;
+            if !(v > 0.0) || !self.scene.surface.visible(x, wc) {
+                continue;
+            }
+            let q = (v as f64 * QUANTUM).min(1e18) as u64;
+            accum.images[k][px].fetch_add(q, Ordering::Relaxed);
+        }
+    }
+
+    /// Run `n` photons with seed `seed`; returns the tally.
+    pub fn run(&self, source: &Source, n: u64, seed: u64) -> Tally {
+        let blocks = n.div_ceil(BLOCK);
+        (0..blocks)
+            .into_par_iter()
+            .map(|b| {
+                let mut rng = Rng::new(mix64(seed ^ ((self.channel as u64) << 60)), b);
+                let count = BLOCK.min(n - b * BLOCK);
+                let mut t = Tally::default();
+                let table = self
+                    .scene
+                    .volume
+                    .as_ref()
+                    .map(|v| v.channel_table(self.channel))
+                    .unwrap_or_default();
+                for _ in 0..count {
+                    let (o, d) = self.emit(source, &mut rng);
+                    self.trace(o, d, &mut rng, &table, &mut t);
+                }
+                t.launched = count;
+                t
+            })
+            .reduce(Tally::default, Tally::add)
+    }
+
+    fn emit(&self, source: &Source, rng: &mut Rng) -> (Vec3, Vec3) {
+        match *source {
+            Source::Stripe {
+                origin,
+                centre,
+                dir,
+                length,
+            } => {
+                let s = (rng.uniform() - 0.5) * length;
+                let target = centre + dir * s;
+                (origin, (target - origin).normalize())
+            }
+            Source::Lamp { to_lamp } => {
+                let hf = &self.scene.surface;
+                let x = (rng.uniform() * 2.0 - 1.0) * hf.half[0];
+                let y = (rng.uniform() * 2.0 - 1.0) * hf.half[1];
+                let d = -to_lamp;
+                let z0 = hf.h_max + 1.0;
+                let t = (z0 - 0.0) / to_lamp.z.max(1e-3);
+                (Vec3::new(x, y, 0.0) + to_lamp * t, d)
+            }
+            Source::Pencil { origin, dir } => (origin, dir),
+        }
+    }
+
+    /// One photon's whole life.
+    fn trace(&self, o: Vec3, d: Vec3, rng: &mut Rng, table: &[(f32, f32)], t: &mut Tally) {
+        let hf = &self.scene.surface;
+        let Some((_, x)) = hf.intersect_from_above(o, d) else {
+            t.missed += 1;
+            return;
+        };
+        let n = hf.normal(x.x, x.y);
+        let local = Local::new(n);
+        let wo = local.to_local(-d);
+        let bsdf = match &self.scene.kind {
+            SurfaceKind::Lambertian(_) => {
+                let rho = self.scene.target_albedo(x.x, x.y, self.channel);
+                self.splat(x, &local, |_| rho * std::f32::consts::FRAC_1_PI);
+                if rng.uniform() < rho {
+                    t.reflected += 1;
+                } else {
+                    t.absorbed += 1;
+                }
+                return;
+            }
+            SurfaceKind::Dielectric(b) => *b,
+        };
+        // entry: surface reflection towards the cameras, then reflect or refract
+        self.splat(x, &local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+        let Some(s) = bsdf.sample_f(
+            wo,
+            rng.uniform(),
+            [rng.uniform(), rng.uniform()],
+            TransportMode::Importance,
+        ) else {
+            t.surface_loss += 1;
+            return;
+        };
+        if s.weight < 1.0 && rng.uniform() >= s.weight {
+            t.surface_loss += 1;
+            return;
+        }
+        if s.wi.z > 0.0 {
+            t.reflected += 1;
+            return;
+        }
+        let d = local.to_world(s.wi);
+        self.walk(x + d * 1e-4, d, rng, table, &bsdf, t);
+    }
+
+    /// The random walk inside the volume, starting just below the surface.
+    fn walk(
+        &self,
+        mut p: Vec3,
+        mut d: Vec3,
+        rng: &mut Rng,
+        table: &[(f32, f32)],
+        bsdf: &Dielectric,
+        t: &mut Tally,
+    ) {
+        let Some(vol) = &self.scene.volume else {
+            t.absorbed += 1;
+            return;
+        };
+        let hf = &self.scene.surface;
+        let [hx, hy, depth] = vol.half;
+        let maj = vol.majorant[self.channel];
+        let homogeneous = vol.grid.is_none();
+        let (st0, alb0) = table[0];
+        if maj <= 0.0 {
+            // a transparent volume: straight to a wall or the top
+            t.escaped += 1;
+            return;
+        }
+        let inv_maj = 1.0 / maj;
+        let mut events = 0u32;
+        loop {
+            // free flight against the majorant (= s_t when homogeneous)
+            let dist = -(1.0 - rng.uniform()).ln() * inv_maj;
+            if let Some((_, x)) = hf.crossing_from_below(p, d, dist) {
+                if !hf.inside_footprint(x.x, x.y) {
+                    t.escaped += 1;
+                    return;
+                }
+                // boundary event: splat the transmitted light, then sample
+                let n = hf.normal(x.x, x.y);
+                let local = Local::new(n);
+                let wo = local.to_local(-d);
+                self.splat(x, &local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+                let Some(s) = bsdf.sample_f(
+                    wo,
+                    rng.uniform(),
+                    [rng.uniform(), rng.uniform()],
+                    TransportMode::Importance,
+                ) else {
+                    t.surface_loss += 1;
+                    return;
+                };
+                if s.weight < 1.0 && rng.uniform() >= s.weight {
+                    t.surface_loss += 1;
+                    return;
+                }
+                if s.wi.z > 0.0 {
+                    t.exited += 1;
+                    if let Some(g) = self.exits {
+                        g.record(x);
+                    }
+                    return;
+                }
+                d = local.to_world(s.wi);
+                p = x + d * 1e-4;
+                continue;
+            }
+            p += d * dist;
+            if p.x.abs() > hx || p.y.abs() > hy || p.z < -depth {
+                t.escaped += 1;
+                return;
+            }
+            let (st, alb) = if homogeneous {
+                (st0, alb0)
+            } else {
+                table[vol.material_at([p.x, p.y, p.z])]
+            };
+            if !homogeneous && rng.uniform() * maj >= st {
+                t.null_events += 1;
+                continue;
+            }
+            t.events += 1;
+            events += 1;
+            if rng.uniform() >= alb {
+                t.absorbed += 1;
+                return;
+            }
+            if events >= MAX_EVENTS {
+                t.truncated += 1;
+                return;
+            }
+            d = sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uniform_sphere_is_uniform() {
+        let mut rng = Rng::new(1, 1);
+        let n = 100_000;
+        let mut mean = Vec3::ZERO;
+        let mut upper = 0;
+        for _ in 0..n {
+            let w = sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+            assert!((w.length() - 1.0).abs() < 1e-5);
+            mean += w;
+            upper += (w.z > 0.5) as usize; // cap area fraction 1/4
+        }
+        assert!((mean / n as f32).length() < 0.01);
+        assert!((upper as f32 / n as f32 - 0.25).abs() < 0.005);
+        assert!((uniform_sphere_pdf() * 4.0 * std::f32::consts::PI - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn local_frame_is_orthonormal() {
+        for n in [
+            Vec3::new(0.3, -0.2, 0.9).normalize(),
+            Vec3::new(-0.7, 0.1, 0.2).normalize(),
+        ] {
+            let l = Local::new(n);
+            let v = Vec3::new(0.2, 0.5, -0.3);
+            assert!((l.to_world(l.to_local(v)) - v).length() < 1e-5);
+            assert!((l.to_local(n) - Vec3::Z).length() < 1e-5);
+        }
+    }
+}
