@@ -1,0 +1,539 @@
+//! The link's engine task: owns the sequence number, the RTT estimate and the
+//! event receiver; sends one command at a time (stop and wait), retransmits on
+//! timeout, interleaves heartbeats and event acknowledgements between
+//! commands, and recovers from MCU resets without re-issuing anything.
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use protocol::seq::EventReceiver;
+use protocol::{
+    Command, CommandError, Event, FrameError, HostFrame, Identity, MAX_FRAME, McuFrame,
+    PROTOCOL_VERSION, Reply, SCHEMA_HASH, Status, encode_frame,
+};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::time::{sleep, sleep_until};
+
+use crate::rto::RttEstimator;
+use crate::{LinkConfig, LinkError, LinkEvent, LinkStats};
+
+/// After a new boot is seen, events this far behind the MCU's newest one are
+/// still accepted (the MCU's queue is far shorter than this).
+const EVENT_WINDOW: u16 = 1024;
+
+/// What the reader and writer tasks tell the engine.
+pub(crate) enum FromWire {
+    Frame(McuFrame),
+    Bad(FrameError),
+    Closed(String),
+}
+
+pub(crate) struct Request {
+    pub command: Command,
+    pub reply: oneshot::Sender<Result<Reply, LinkError>>,
+}
+
+/// State the handle reads without a round trip.
+#[derive(Default)]
+pub(crate) struct Shared {
+    pub identity: Option<Identity>,
+    pub status: Option<Status>,
+    /// Newest MotionDone per axis: (eseq, position_steps, homed).
+    pub motion_done: [Option<(u16, i32, bool)>; 2],
+    /// Newest SweepDone: (eseq, completed).
+    pub sweep_done: Option<(u16, bool)>,
+    /// A reset noticed between calls, reported once to the next caller.
+    pub pending_reset: Option<LinkError>,
+    pub stats: LinkStats,
+}
+
+pub(crate) struct Engine {
+    pub config: LinkConfig,
+    pub shared: Arc<Mutex<Shared>>,
+    pub events: broadcast::Sender<LinkEvent>,
+    pub out: mpsc::UnboundedSender<Vec<u8>>,
+    pub wire: mpsc::Receiver<FromWire>,
+    pub requests: mpsc::Receiver<Request>,
+    pub beats: mpsc::Receiver<()>,
+    pub seq: u16,
+    pub rtt: RttEstimator,
+    pub receiver: EventReceiver,
+    /// Newest event sequence acknowledged to the MCU.
+    pub acked: u16,
+    /// Identified and status read since the last (re)boot seen.
+    pub synced: bool,
+    /// Suppress the "missed events" notice for the first event after a new boot.
+    pub fresh_window: bool,
+    pub boot_id: Option<u32>,
+    pub dropped_seen: u16,
+    pub active_moves: [Option<Command>; 2],
+    pub active_sweep: Option<Command>,
+    /// A Booted event (or a boot id change) was seen and not yet handled.
+    pub reset_seen: bool,
+    pub dead: Option<String>,
+}
+
+impl Engine {
+    fn stats(&self, f: impl FnOnce(&mut LinkStats)) {
+        if let Ok(mut s) = self.shared.lock() {
+            f(&mut s.stats);
+        }
+    }
+
+    /// The engine loop: until every handle is dropped.
+    pub async fn run(mut self) {
+        loop {
+            if self.reset_seen && self.dead.is_none() {
+                let err = self.recover_reset(None).await;
+                self.report_pending(err);
+            }
+            let alive = self.dead.is_none();
+            let ack_due = alive && self.synced && self.receiver.ack_upto() != self.acked;
+            tokio::select! {
+                biased;
+                msg = self.wire.recv(), if alive => self.on_wire_idle(msg),
+                Some(()) = self.beats.recv(), if alive => {
+                    if self.synced {
+                        self.heartbeat().await;
+                    }
+                }
+                _ = sleep(self.config.ack_delay), if ack_due => self.heartbeat().await,
+                req = self.requests.recv() => match req {
+                    None => break,
+                    Some(r) => {
+                        let res = self.call(r.command).await;
+                        let _ = r.reply.send(res);
+                    }
+                },
+            }
+        }
+    }
+
+    fn report_pending(&mut self, err: LinkError) {
+        if let Ok(mut s) = self.shared.lock() {
+            s.pending_reset = Some(err);
+        }
+    }
+
+    fn on_wire_idle(&mut self, msg: Option<FromWire>) {
+        match msg {
+            None => self.die("reader stopped".into()),
+            Some(FromWire::Closed(reason)) => self.die(reason),
+            Some(FromWire::Bad(e)) => self.bad_frame(e),
+            Some(FromWire::Frame(McuFrame::Ack { .. })) => self.stats(|s| s.stale_acks += 1),
+            Some(FromWire::Frame(McuFrame::Event { eseq, at_us, event })) => {
+                self.on_event(eseq, at_us, event)
+            }
+        }
+    }
+
+    fn bad_frame(&self, e: FrameError) {
+        tracing::debug!("dropped a frame: {e}");
+        self.stats(|s| s.bad_frames += 1);
+    }
+
+    fn die(&mut self, reason: String) {
+        if self.dead.is_none() {
+            tracing::warn!("link lost: {reason}");
+            let _ = self.events.send(LinkEvent::Disconnected {
+                reason: reason.clone(),
+            });
+            self.dead = Some(reason);
+            self.synced = false;
+        }
+    }
+
+    fn disconnected(&self) -> LinkError {
+        LinkError::Disconnected {
+            reason: self.dead.clone().unwrap_or_else(|| "closed".into()),
+        }
+    }
+
+    /// One command, stop and wait: send, retransmit on timeout with back-off,
+    /// return the MCU's answer. Events arriving meanwhile are handled.
+    async fn transact(
+        &mut self,
+        command: &Command,
+    ) -> Result<Result<Reply, CommandError>, LinkError> {
+        if self.dead.is_some() {
+            return Err(self.disconnected());
+        }
+        self.seq = self.seq.wrapping_add(1);
+        let seq = self.seq;
+        let mut buf = [0u8; MAX_FRAME];
+        let frame = HostFrame {
+            seq,
+            command: command.clone(),
+        };
+        let n = encode_frame(&frame, &mut buf)
+            .map_err(|e| LinkError::BadArgument(format!("cannot encode {command:?}: {e}")))?;
+        let bytes = &buf[..n];
+        let mut tries = 0;
+        loop {
+            tries += 1;
+            let sent_at = Instant::now();
+            // A leading delimiter flushes any garbage the MCU's decoder holds.
+            let mut wire = Vec::with_capacity(n + 1);
+            wire.push(0);
+            wire.extend_from_slice(bytes);
+            if self.out.send(wire).is_err() {
+                self.die("writer stopped".into());
+                return Err(self.disconnected());
+            }
+            self.stats(|s| {
+                s.transmissions += 1;
+                if tries > 1 {
+                    s.retransmissions += 1;
+                }
+            });
+            let deadline = tokio::time::Instant::from_std(sent_at + self.rtt.rto());
+            loop {
+                tokio::select! {
+                    msg = self.wire.recv() => match msg {
+                        None => {
+                            self.die("reader stopped".into());
+                            return Err(self.disconnected());
+                        }
+                        Some(FromWire::Closed(reason)) => {
+                            self.die(reason);
+                            return Err(self.disconnected());
+                        }
+                        Some(FromWire::Bad(e)) => self.bad_frame(e),
+                        Some(FromWire::Frame(McuFrame::Ack { seq: s, result })) if s == seq => {
+                            if tries == 1 {
+                                // Karn: only unambiguous round trips are samples.
+                                self.rtt.sample(sent_at.elapsed());
+                            }
+                            return Ok(result);
+                        }
+                        Some(FromWire::Frame(McuFrame::Ack { .. })) => self.stats(|s| s.stale_acks += 1),
+                        Some(FromWire::Frame(McuFrame::Event { eseq, at_us, event })) => {
+                            self.on_event(eseq, at_us, event)
+                        }
+                    },
+                    _ = sleep_until(deadline) => break,
+                }
+            }
+            self.rtt.backoff();
+            if tries >= self.config.tries {
+                self.stats(|s| s.timeouts += 1);
+                return Err(LinkError::Timeout {
+                    command: command.clone(),
+                    tries,
+                });
+            }
+        }
+    }
+
+    /// A user call: make sure the link is identified, send, interpret.
+    async fn call(&mut self, mut command: Command) -> Result<Reply, LinkError> {
+        if let Some(err) = self
+            .shared
+            .lock()
+            .ok()
+            .and_then(|mut s| s.pending_reset.take())
+        {
+            return Err(err);
+        }
+        if self.dead.is_some() {
+            return Err(self.disconnected());
+        }
+        self.stats(|s| s.commands += 1);
+        if !self.synced {
+            let synced = self.sync().await;
+            if let Err(e) = synced {
+                return Err(e);
+            }
+            if command == Command::Identify {
+                return self.identity_reply();
+            }
+        }
+        match command {
+            Command::Identify => {
+                let id = self.handshake().await?;
+                if self.boot_id != Some(id.boot_id) {
+                    return Err(self.recover_reset(None).await);
+                }
+                return Ok(Reply::Identity(id));
+            }
+            Command::Heartbeat { ref mut event_ack } => *event_ack = self.receiver.ack_upto(),
+            Command::Reset => return self.reset().await,
+            _ => {}
+        }
+        let mut resynced = false;
+        loop {
+            match self.transact(&command).await? {
+                Ok(reply) => {
+                    self.after_ok(&command, &reply);
+                    if self.reset_seen {
+                        let interrupted = has_effect(&command).then(|| command.clone());
+                        return Err(self.recover_reset(interrupted).await);
+                    }
+                    return Ok(reply);
+                }
+                Err(CommandError::NotIdentified) => {
+                    return Err(self.recover_reset(Some(command)).await);
+                }
+                // Refused, hence not executed: resend once under the number
+                // the MCU expects (after a command we gave up on).
+                Err(CommandError::OutOfSequence { expected }) if !resynced => {
+                    self.stats(|s| s.resyncs += 1);
+                    self.seq = expected.wrapping_sub(1);
+                    resynced = true;
+                }
+                Err(error) => return Err(LinkError::Refused { command, error }),
+            }
+        }
+    }
+
+    fn identity_reply(&self) -> Result<Reply, LinkError> {
+        self.shared
+            .lock()
+            .ok()
+            .and_then(|s| s.identity.clone())
+            .map(Reply::Identity)
+            .ok_or(LinkError::UnexpectedReply {
+                command: Command::Identify,
+            })
+    }
+
+    /// Bookkeeping after a successful command.
+    fn after_ok(&mut self, command: &Command, reply: &Reply) {
+        match command {
+            Command::Move { axis, .. } | Command::Home { axis } => {
+                self.active_moves[axis.index()] = Some(command.clone())
+            }
+            Command::GalvoSweep(_) => self.active_sweep = Some(command.clone()),
+            Command::Heartbeat { event_ack } | Command::AckEvents { upto: event_ack } => {
+                self.acked = *event_ack
+            }
+            _ => {}
+        }
+        if let Reply::Status(status) = reply {
+            self.note_status(status);
+        }
+    }
+
+    fn note_status(&mut self, status: &Status) {
+        if self.boot_id.is_some_and(|b| b != status.boot_id) {
+            self.reset_seen = true;
+        }
+        if status.events_dropped != self.dropped_seen {
+            let count = status.events_dropped.wrapping_sub(self.dropped_seen);
+            tracing::warn!("the MCU dropped {count} events (queue full)");
+            let _ = self.events.send(LinkEvent::EventsDropped {
+                total: status.events_dropped,
+            });
+            self.dropped_seen = status.events_dropped;
+        }
+        if let Ok(mut s) = self.shared.lock() {
+            s.status = Some(*status);
+        }
+    }
+
+    /// Identify and check the peer; does not change the sync state.
+    async fn handshake(&mut self) -> Result<Identity, LinkError> {
+        // A stale cached answer (our sequence equals the MCU's last one from a
+        // previous session) is not an Identity: the next number executes.
+        for _ in 0..3 {
+            match self.transact(&Command::Identify).await? {
+                Ok(Reply::Identity(id)) => {
+                    if id.protocol_version != PROTOCOL_VERSION {
+                        return Err(LinkError::VersionMismatch {
+                            mcu: id.protocol_version,
+                            host: PROTOCOL_VERSION,
+                        });
+                    }
+                    if id.schema_hash != SCHEMA_HASH {
+                        return Err(LinkError::SchemaMismatch {
+                            mcu: id.schema_hash,
+                            host: SCHEMA_HASH,
+                        });
+                    }
+                    if let Ok(mut s) = self.shared.lock() {
+                        s.identity = Some(id.clone());
+                    }
+                    return Ok(id);
+                }
+                Ok(_) => continue,
+                Err(error) => {
+                    return Err(LinkError::Refused {
+                        command: Command::Identify,
+                        error,
+                    });
+                }
+            }
+        }
+        Err(LinkError::UnexpectedReply {
+            command: Command::Identify,
+        })
+    }
+
+    /// Handshake, then read the status; re-base event numbering on a new boot.
+    async fn sync(&mut self) -> Result<Status, LinkError> {
+        self.synced = false;
+        let id = self.handshake().await?;
+        let status = match self.transact(&Command::Status).await? {
+            Ok(Reply::Status(s)) => s,
+            Ok(_) => {
+                return Err(LinkError::UnexpectedReply {
+                    command: Command::Status,
+                });
+            }
+            Err(error) => {
+                return Err(LinkError::Refused {
+                    command: Command::Status,
+                    error,
+                });
+            }
+        };
+        if self.boot_id != Some(id.boot_id) {
+            self.receiver
+                .reset(status.last_eseq.wrapping_sub(EVENT_WINDOW));
+            self.acked = self.receiver.ack_upto();
+            self.fresh_window = true;
+            self.dropped_seen = status.events_dropped;
+            self.boot_id = Some(id.boot_id);
+        }
+        self.reset_seen = false;
+        self.synced = true;
+        self.note_status(&status);
+        Ok(status)
+    }
+
+    /// The MCU was reset: re-sync and build the report for the caller.
+    async fn recover_reset(&mut self, in_flight: Option<Command>) -> LinkError {
+        self.stats(|s| s.resets += 1);
+        let interrupted = in_flight
+            .or_else(|| self.active_sweep.take())
+            .or_else(|| self.active_moves.iter_mut().find_map(Option::take));
+        self.active_sweep = None;
+        self.active_moves = [None, None];
+        tracing::warn!("MCU reset detected (interrupted: {interrupted:?}); re-identifying");
+        match self.sync().await {
+            Ok(status) => {
+                let _ = self.events.send(LinkEvent::DeviceReset {
+                    interrupted: interrupted.clone(),
+                    status: Box::new(status),
+                });
+                LinkError::DeviceReset {
+                    interrupted,
+                    status: Box::new(status),
+                }
+            }
+            Err(e) => e,
+        }
+    }
+
+    /// `Reset` on purpose: send it, then identify until the new boot answers.
+    async fn reset(&mut self) -> Result<Reply, LinkError> {
+        match self.transact(&Command::Reset).await? {
+            Ok(_) => {}
+            Err(CommandError::NotIdentified) => {
+                // Already reset by itself: report, do not reset twice.
+                return Err(self.recover_reset(Some(Command::Reset)).await);
+            }
+            Err(error) => {
+                return Err(LinkError::Refused {
+                    command: Command::Reset,
+                    error,
+                });
+            }
+        }
+        let old = self.boot_id;
+        self.synced = false;
+        self.active_sweep = None;
+        self.active_moves = [None, None];
+        for _ in 0..self.config.tries.max(1) * 4 {
+            let id = self.handshake().await?;
+            if Some(id.boot_id) != old {
+                self.sync().await?;
+                return self.identity_reply();
+            }
+            sleep(self.config.min_rto).await;
+        }
+        Err(LinkError::Timeout {
+            command: Command::Reset,
+            tries: self.config.tries,
+        })
+    }
+
+    async fn heartbeat(&mut self) {
+        let ack = self.receiver.ack_upto();
+        match self.transact(&Command::Heartbeat { event_ack: ack }).await {
+            Ok(Ok(_)) => self.acked = ack,
+            Ok(Err(CommandError::NotIdentified)) => {
+                let err = self.recover_reset(None).await;
+                self.report_pending(err);
+            }
+            Ok(Err(CommandError::OutOfSequence { expected })) => {
+                self.stats(|s| s.resyncs += 1);
+                self.seq = expected.wrapping_sub(1);
+            }
+            Ok(Err(e)) => tracing::warn!("heartbeat refused: {e:?}"),
+            Err(e) => {
+                self.stats(|s| s.heartbeat_failures += 1);
+                tracing::warn!("heartbeat failed: {e}");
+            }
+        }
+    }
+
+    fn on_event(&mut self, eseq: u16, at_us: u64, event: Event) {
+        if !self.synced {
+            // Not yet re-based on this boot's numbering: the MCU re-sends.
+            return;
+        }
+        self.stats(|s| s.events += 1);
+        if let Event::Booted { boot_id, .. } = event
+            && self.boot_id != Some(boot_id)
+        {
+            self.receiver.reset(eseq.wrapping_sub(1));
+            self.reset_seen = true;
+        }
+        let expected = self.receiver.ack_upto().wrapping_add(1);
+        if !self.receiver.accept(eseq) {
+            self.stats(|s| s.duplicate_events += 1);
+            return;
+        }
+        if eseq != expected && !std::mem::take(&mut self.fresh_window) {
+            let count = eseq.wrapping_sub(expected);
+            tracing::warn!("{count} events missing before eseq {eseq}");
+            let _ = self.events.send(LinkEvent::EventsMissed {
+                before: eseq,
+                count,
+            });
+        }
+        self.fresh_window = false;
+        match event {
+            Event::MotionDone {
+                axis,
+                position_steps,
+                homed,
+            } => {
+                self.active_moves[axis.index()] = None;
+                if let Ok(mut s) = self.shared.lock() {
+                    s.motion_done[axis.index()] = Some((eseq, position_steps, homed));
+                }
+            }
+            Event::SweepDone { completed } => {
+                self.active_sweep = None;
+                if let Ok(mut s) = self.shared.lock() {
+                    s.sweep_done = Some((eseq, completed));
+                }
+            }
+            Event::Fault { cause } => {
+                tracing::warn!("MCU fault: {}", crate::error::fault_name(&cause))
+            }
+            _ => {}
+        }
+        let _ = self.events.send(LinkEvent::Mcu { eseq, at_us, event });
+    }
+}
+
+/// Commands whose effect a reset undoes (worth reporting as interrupted).
+fn has_effect(c: &Command) -> bool {
+    !matches!(
+        c,
+        Command::Identify | Command::Heartbeat { .. } | Command::AckEvents { .. } | Command::Status
+    )
+}
