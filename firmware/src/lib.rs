@@ -25,6 +25,8 @@ pub mod tx;
 #[cfg(test)]
 mod controller_tests;
 #[cfg(test)]
+mod proptests;
+#[cfg(test)]
 mod testkit;
 
 pub use controller::Controller;
