@@ -1,0 +1,615 @@
+//! The capture directory and its crash-safe journal.
+//!
+//! ```text
+//! CAPTURE_DIR/
+//!   capture.toml     format, version, rig, sample, seed, the plan configuration
+//!   journal          append-only, one line per event, each line checksummed
+//!   frames/pN/sSSSSSS_kKKK_cC.png   8-bit frames as the cameras gave them
+//! ```
+//!
+//! A frame is written to a temporary file, fsynced and renamed into place; only
+//! then is its journal line (path, size, sha256) appended and fsynced. So a
+//! frame in the journal is always complete on disk, and a crash loses at most
+//! the frames after the last journal line. A torn last line (no newline: the
+//! crash hit mid-write) is cut off on resume; any other damage (a bad line
+//! checksum, a missing or changed frame, a foreign capture.toml) makes `open`
+//! refuse the directory without touching it.
+//!
+//! The journal holds nothing that depends on time or arrival order (frames are
+//! appended in plan order), so a resumed capture is byte-identical to an
+//! uninterrupted one.
+
+use std::collections::BTreeMap;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::plan::{Plan, PlanConfig, PlanError};
+
+/// Value of `format` in capture.toml.
+pub const FORMAT: &str = "qhm-capture";
+/// Version of this directory layout.
+pub const VERSION: u32 = 1;
+const MANIFEST: &str = "capture.toml";
+const JOURNAL: &str = "journal";
+
+/// What capture.toml holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    /// Where the frames came from ("sim" or the serial port); informational.
+    pub rig: String,
+    /// Sample preset or file the run was asked to measure.
+    pub sample: String,
+    /// Seed of every random process of the (simulated) world.
+    pub seed: u64,
+    /// sha256 of the plan's steps, hex: resume refuses a different plan.
+    pub plan_sha256: String,
+    pub plan: PlanConfig,
+}
+
+impl Manifest {
+    pub fn new(rig: &str, sample: &str, seed: u64, plan: &Plan) -> Manifest {
+        Manifest {
+            format: FORMAT.into(),
+            version: VERSION,
+            rig: rig.into(),
+            sample: sample.into(),
+            seed,
+            plan_sha256: plan_sha256(plan),
+            plan: plan.config.clone(),
+        }
+    }
+}
+
+/// sha256 of the plan's steps as JSON.
+pub fn plan_sha256(plan: &Plan) -> String {
+    let json = serde_json::to_vec(&plan.steps).expect("plan steps serialise");
+    hex(&Sha256::digest(&json))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DirError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+    /// The directory has files but no capture.toml: refuse to write into it.
+    #[error(
+        "{0} is not empty and is not a qhm capture directory (no capture.toml); refusing to write into it"
+    )]
+    Foreign(PathBuf),
+    /// capture.toml is unreadable or of another format or version.
+    #[error("{path}: not a qhm capture manifest: {why}")]
+    BadManifest { path: PathBuf, why: String },
+    /// A capture exists and `--resume` was not given.
+    #[error(
+        "{0} already holds a capture; pass --resume to continue it or choose another directory"
+    )]
+    Exists(PathBuf),
+    /// `--resume` on a directory captured with other settings.
+    #[error("{path}: cannot resume: the directory was captured with a different {what}")]
+    Mismatch { path: PathBuf, what: String },
+    /// The journal is damaged beyond a torn last line.
+    #[error("{path}: journal line {line}: {why}")]
+    CorruptJournal {
+        path: PathBuf,
+        line: usize,
+        why: String,
+    },
+    /// A frame the journal lists is missing or differs from its checksum.
+    #[error("{path}: frame {frame} {why}; the capture is damaged (not overwriting it)")]
+    BadFrame {
+        path: PathBuf,
+        frame: String,
+        why: String,
+    },
+    /// Another run holds the journal lock.
+    #[error("{0}: another capture run is writing this directory")]
+    Locked(PathBuf),
+    /// The stored plan does not build.
+    #[error("{0}")]
+    Plan(#[from] PlanError),
+}
+
+/// Key of a frame: (step, scan position, camera).
+pub type FrameKey = (u32, u32, u8);
+
+/// One journaled frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameRecord {
+    pub path: String,
+    pub bytes: u64,
+    pub sha256: String,
+}
+
+/// An open capture directory, locked for writing.
+pub struct CaptureDir {
+    root: PathBuf,
+    manifest: Manifest,
+    journal: File,
+    frames: BTreeMap<FrameKey, FrameRecord>,
+    steps_done: u32,
+    complete: bool,
+}
+
+fn io_err(path: &Path) -> impl FnOnce(io::Error) -> DirError + '_ {
+    move |source| DirError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Appends ` ~` and the first 16 hex digits of the line's sha256.
+fn seal(line: &str) -> String {
+    format!("{line} ~{}\n", &hex(&Sha256::digest(line.as_bytes()))[..16])
+}
+
+fn unseal(line: &str) -> Option<&str> {
+    let (body, sum) = line.rsplit_once(" ~")?;
+    (hex(&Sha256::digest(body.as_bytes()))[..16] == *sum).then_some(body)
+}
+
+impl CaptureDir {
+    /// Creates a new capture in `root` (absent or empty).
+    pub fn create(root: &Path, manifest: Manifest) -> Result<CaptureDir, DirError> {
+        if root.exists() {
+            let mut entries = fs::read_dir(root).map_err(io_err(root))?;
+            if entries.next().is_some() {
+                return Err(if root.join(MANIFEST).exists() {
+                    DirError::Exists(root.to_path_buf())
+                } else {
+                    DirError::Foreign(root.to_path_buf())
+                });
+            }
+        }
+        fs::create_dir_all(root.join("frames")).map_err(io_err(root))?;
+        let text = toml::to_string(&manifest).map_err(|e| DirError::BadManifest {
+            path: root.join(MANIFEST),
+            why: e.to_string(),
+        })?;
+        write_durably(root, MANIFEST, text.as_bytes())?;
+        let jpath = root.join(JOURNAL);
+        let mut journal = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(&jpath)
+            .map_err(io_err(&jpath))?;
+        lock(&journal, root)?;
+        let head = seal(&format!("qhm-journal {VERSION} {}", manifest.plan_sha256));
+        journal
+            .write_all(head.as_bytes())
+            .and_then(|_| journal.sync_all())
+            .map_err(io_err(&jpath))?;
+        sync_dir(root)?;
+        Ok(CaptureDir {
+            root: root.to_path_buf(),
+            manifest,
+            journal,
+            frames: BTreeMap::new(),
+            steps_done: 0,
+            complete: false,
+        })
+    }
+
+    /// Opens an existing capture to resume it; `expect` must match its manifest
+    /// (pass `None` to open whatever is there, e.g. for reading).
+    pub fn open(root: &Path, expect: Option<&Manifest>) -> Result<CaptureDir, DirError> {
+        let mpath = root.join(MANIFEST);
+        if !mpath.exists() {
+            let empty = fs::read_dir(root)
+                .map(|mut d| d.next().is_none())
+                .unwrap_or(false);
+            return Err(if empty || !root.exists() {
+                DirError::BadManifest {
+                    path: mpath,
+                    why: "missing: nothing to resume".into(),
+                }
+            } else {
+                DirError::Foreign(root.to_path_buf())
+            });
+        }
+        let text = fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
+        let manifest: Manifest = toml::from_str(&text).map_err(|e| DirError::BadManifest {
+            path: mpath.clone(),
+            why: e.to_string(),
+        })?;
+        if manifest.format != FORMAT || manifest.version != VERSION {
+            return Err(DirError::BadManifest {
+                path: mpath,
+                why: format!(
+                    "format {:?} version {} (expected {FORMAT:?} version {VERSION})",
+                    manifest.format, manifest.version
+                ),
+            });
+        }
+        let plan = Plan::new(manifest.plan.clone())?;
+        if plan_sha256(&plan) != manifest.plan_sha256 {
+            return Err(DirError::BadManifest {
+                path: mpath,
+                why: "plan_sha256 does not match its plan (edited, or another qhm version)".into(),
+            });
+        }
+        if let Some(want) = expect {
+            for (what, same) in [
+                ("plan", want.plan_sha256 == manifest.plan_sha256),
+                ("seed", want.seed == manifest.seed),
+                ("sample", want.sample == manifest.sample),
+                ("rig", want.rig == manifest.rig),
+            ] {
+                if !same {
+                    return Err(DirError::Mismatch {
+                        path: root.to_path_buf(),
+                        what: what.into(),
+                    });
+                }
+            }
+        }
+        let jpath = root.join(JOURNAL);
+        let journal = OpenOptions::new()
+            .read(true)
+            .append(true)
+            .open(&jpath)
+            .map_err(io_err(&jpath))?;
+        lock(&journal, root)?;
+        let raw = fs::read(&jpath).map_err(io_err(&jpath))?;
+        let mut dir = CaptureDir {
+            root: root.to_path_buf(),
+            manifest,
+            journal,
+            frames: BTreeMap::new(),
+            steps_done: 0,
+            complete: false,
+        };
+        let keep = dir.replay(&raw, &plan)?;
+        if keep < raw.len() {
+            // A torn last line: the crash hit mid-append. Cut it off.
+            dir.journal
+                .set_len(keep as u64)
+                .and_then(|_| dir.journal.sync_all())
+                .map_err(io_err(&jpath))?;
+        }
+        dir.verify_frames()?;
+        Ok(dir)
+    }
+
+    /// Reads the journal; returns how many bytes of it are whole lines.
+    fn replay(&mut self, raw: &[u8], plan: &Plan) -> Result<usize, DirError> {
+        let jpath = self.root.join(JOURNAL);
+        let corrupt = |line: usize, why: &str| DirError::CorruptJournal {
+            path: jpath.clone(),
+            line,
+            why: why.into(),
+        };
+        let whole = raw.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+        let text = std::str::from_utf8(&raw[..whole]).map_err(|_| corrupt(0, "not UTF-8"))?;
+        for (i, line) in text.lines().enumerate() {
+            let n = i + 1;
+            let body = unseal(line).ok_or_else(|| corrupt(n, "checksum mismatch"))?;
+            let f: Vec<&str> = body.split(' ').collect();
+            if self.complete {
+                return Err(corrupt(n, "lines after `complete`"));
+            }
+            match (n, f.as_slice()) {
+                (1, ["qhm-journal", v, sha]) => {
+                    if *v != VERSION.to_string() || *sha != self.manifest.plan_sha256 {
+                        return Err(corrupt(n, "journal of another plan or version"));
+                    }
+                }
+                (1, _) => return Err(corrupt(n, "missing qhm-journal header")),
+                (_, ["frame", s, k, c, sha, bytes, path]) => {
+                    let key: FrameKey = (
+                        s.parse().map_err(|_| corrupt(n, "bad step"))?,
+                        k.parse().map_err(|_| corrupt(n, "bad scan index"))?,
+                        c.parse().map_err(|_| corrupt(n, "bad camera"))?,
+                    );
+                    let step = plan
+                        .steps
+                        .get(key.0 as usize)
+                        .ok_or_else(|| corrupt(n, "step beyond the plan"))?;
+                    if key.0 != self.steps_done || *path != step.frame_path(key.1 as usize, key.2) {
+                        return Err(corrupt(n, "frame out of plan order"));
+                    }
+                    let rec = FrameRecord {
+                        path: path.to_string(),
+                        bytes: bytes.parse().map_err(|_| corrupt(n, "bad size"))?,
+                        sha256: sha.to_string(),
+                    };
+                    if self.frames.insert(key, rec).is_some() {
+                        return Err(corrupt(n, "frame journaled twice"));
+                    }
+                }
+                (_, ["step", s]) => {
+                    if *s != self.steps_done.to_string() {
+                        return Err(corrupt(n, "step completed out of order"));
+                    }
+                    let step = &plan.steps[self.steps_done as usize];
+                    let have = self.frames.range((step.index, 0, 0)..).count();
+                    if have != step.frames() {
+                        return Err(corrupt(n, "step marked done with frames missing"));
+                    }
+                    self.steps_done += 1;
+                }
+                (_, ["complete", count]) => {
+                    if self.steps_done as usize != plan.steps.len()
+                        || *count != self.frames.len().to_string()
+                    {
+                        return Err(corrupt(n, "complete before the plan's end"));
+                    }
+                    self.complete = true;
+                }
+                _ => return Err(corrupt(n, "unknown line")),
+            }
+        }
+        if whole == 0 {
+            return Err(corrupt(1, "empty journal"));
+        }
+        Ok(whole)
+    }
+
+    /// Checks every journaled frame's size and sha256.
+    fn verify_frames(&self) -> Result<(), DirError> {
+        for rec in self.frames.values() {
+            let path = self.root.join(&rec.path);
+            let bad = |why: String| DirError::BadFrame {
+                path: self.root.clone(),
+                frame: rec.path.clone(),
+                why,
+            };
+            let data = fs::read(&path).map_err(|e| bad(format!("unreadable: {e}")))?;
+            if data.len() as u64 != rec.bytes || hex(&Sha256::digest(&data)) != rec.sha256 {
+                return Err(bad("does not match its journal checksum".into()));
+            }
+        }
+        Ok(())
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+    /// The plan the manifest describes.
+    pub fn plan(&self) -> Result<Plan, DirError> {
+        Ok(Plan::new(self.manifest.plan.clone())?)
+    }
+    /// Steps finished (all their frames journaled): resume starts at this index.
+    pub fn steps_done(&self) -> u32 {
+        self.steps_done
+    }
+    pub fn is_complete(&self) -> bool {
+        self.complete
+    }
+    pub fn frame_count(&self) -> usize {
+        self.frames.len()
+    }
+    pub fn has_frame(&self, key: FrameKey) -> bool {
+        self.frames.contains_key(&key)
+    }
+    /// The journaled frames in plan order.
+    pub fn frames(&self) -> impl Iterator<Item = (&FrameKey, &FrameRecord)> {
+        self.frames.iter()
+    }
+
+    /// Writes a frame durably and journals it. Frames of a step must be
+    /// written in (scan position, camera) order.
+    pub fn write_frame(
+        &mut self,
+        key: FrameKey,
+        rel_path: &str,
+        png: &[u8],
+    ) -> Result<(), DirError> {
+        write_durably(&self.root, rel_path, png)?;
+        let sha = hex(&Sha256::digest(png));
+        let line = format!(
+            "frame {} {} {} {sha} {} {rel_path}",
+            key.0,
+            key.1,
+            key.2,
+            png.len()
+        );
+        self.append(&line)?;
+        self.frames.insert(
+            key,
+            FrameRecord {
+                path: rel_path.into(),
+                bytes: png.len() as u64,
+                sha256: sha,
+            },
+        );
+        Ok(())
+    }
+
+    /// Marks the next step finished.
+    pub fn step_done(&mut self, step: u32) -> Result<(), DirError> {
+        debug_assert_eq!(step, self.steps_done);
+        self.append(&format!("step {step}"))?;
+        self.steps_done += 1;
+        Ok(())
+    }
+
+    /// Marks the capture finished.
+    pub fn finish(&mut self) -> Result<(), DirError> {
+        self.append(&format!("complete {}", self.frames.len()))?;
+        self.complete = true;
+        Ok(())
+    }
+
+    fn append(&mut self, line: &str) -> Result<(), DirError> {
+        let path = self.root.join(JOURNAL);
+        self.journal
+            .write_all(seal(line).as_bytes())
+            .and_then(|_| self.journal.sync_data())
+            .map_err(io_err(&path))
+    }
+}
+
+fn lock(journal: &File, root: &Path) -> Result<(), DirError> {
+    journal.try_lock().map_err(|e| match e {
+        fs::TryLockError::WouldBlock => DirError::Locked(root.to_path_buf()),
+        fs::TryLockError::Error(source) => DirError::Io {
+            path: root.join(JOURNAL),
+            source,
+        },
+    })
+}
+
+/// Write to a temporary name, fsync, rename, fsync the directory.
+fn write_durably(root: &Path, rel: &str, data: &[u8]) -> Result<(), DirError> {
+    let path = root.join(rel);
+    let parent = path.parent().unwrap_or(root).to_path_buf();
+    fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+    let tmp = path.with_extension("tmp");
+    let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
+    f.write_all(data)
+        .and_then(|_| f.sync_all())
+        .map_err(io_err(&tmp))?;
+    fs::rename(&tmp, &path).map_err(io_err(&path))?;
+    sync_dir(&parent)
+}
+
+fn sync_dir(dir: &Path) -> Result<(), DirError> {
+    File::open(dir)
+        .and_then(|d| d.sync_all())
+        .map_err(io_err(dir))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::Scale;
+
+    fn setup() -> (tempfile::TempDir, Plan, Manifest) {
+        let tmp = tempfile::tempdir().unwrap();
+        let plan = Plan::new(PlanConfig::for_scale(Scale::Ci)).unwrap();
+        let m = Manifest::new("sim", "marble", 7, &plan);
+        (tmp, plan, m)
+    }
+
+    fn write_step(dir: &mut CaptureDir, plan: &Plan, s: usize) {
+        let step = &plan.steps[s];
+        for k in 0..step.triggers() {
+            for &c in &step.cameras {
+                let data = format!("frame {s} {k} {c}");
+                dir.write_frame(
+                    (s as u32, k as u32, c),
+                    &step.frame_path(k, c),
+                    data.as_bytes(),
+                )
+                .unwrap();
+            }
+        }
+        dir.step_done(s as u32).unwrap();
+    }
+
+    #[test]
+    fn create_write_reopen() {
+        let (tmp, plan, m) = setup();
+        let root = tmp.path().join("cap");
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        write_step(&mut d, &plan, 0);
+        write_step(&mut d, &plan, 1);
+        let n = d.frame_count();
+        drop(d);
+        let d = CaptureDir::open(&root, Some(&m)).unwrap();
+        assert_eq!(d.steps_done(), 2);
+        assert_eq!(d.frame_count(), n);
+        assert!(!d.is_complete());
+    }
+
+    #[test]
+    fn second_open_is_locked() {
+        let (tmp, _plan, m) = setup();
+        let root = tmp.path().join("cap");
+        let _d = CaptureDir::create(&root, m.clone()).unwrap();
+        assert!(matches!(
+            CaptureDir::open(&root, Some(&m)),
+            Err(DirError::Locked(_))
+        ));
+    }
+
+    #[test]
+    fn torn_last_line_is_cut_and_resumes() {
+        let (tmp, plan, m) = setup();
+        let root = tmp.path().join("cap");
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        write_step(&mut d, &plan, 0);
+        drop(d);
+        let jpath = root.join(JOURNAL);
+        let good = fs::read(&jpath).unwrap();
+        let mut torn = good.clone();
+        torn.extend_from_slice(b"frame 1 0 3 abc");
+        fs::write(&jpath, &torn).unwrap();
+        let d = CaptureDir::open(&root, Some(&m)).unwrap();
+        assert_eq!(d.steps_done(), 1);
+        drop(d);
+        assert_eq!(fs::read(&jpath).unwrap(), good);
+    }
+
+    #[test]
+    fn damage_is_refused_and_left_alone() {
+        let (tmp, plan, m) = setup();
+        let root = tmp.path().join("cap");
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        write_step(&mut d, &plan, 0);
+        drop(d);
+        // A changed frame.
+        let f = root.join(plan.steps[0].frame_path(0, plan.steps[0].cameras[0]));
+        fs::write(&f, b"other bytes").unwrap();
+        assert!(matches!(
+            CaptureDir::open(&root, Some(&m)),
+            Err(DirError::BadFrame { .. })
+        ));
+        // A flipped byte inside the journal.
+        let jpath = root.join(JOURNAL);
+        let mut j = fs::read(&jpath).unwrap();
+        j[60] ^= 1;
+        fs::write(&jpath, &j).unwrap();
+        let e = CaptureDir::open(&root, Some(&m)).err().unwrap();
+        assert!(matches!(e, DirError::CorruptJournal { .. }), "{e}");
+        assert_eq!(fs::read(&jpath).unwrap(), j, "refused, not rewritten");
+    }
+
+    #[test]
+    fn foreign_and_existing_dirs_are_refused() {
+        let (tmp, plan, m) = setup();
+        let foreign = tmp.path().join("photos");
+        fs::create_dir_all(&foreign).unwrap();
+        fs::write(foreign.join("holiday.jpg"), b"x").unwrap();
+        assert!(matches!(
+            CaptureDir::create(&foreign, m.clone()),
+            Err(DirError::Foreign(_))
+        ));
+        assert!(matches!(
+            CaptureDir::open(&foreign, Some(&m)),
+            Err(DirError::Foreign(_))
+        ));
+        let root = tmp.path().join("cap");
+        drop(CaptureDir::create(&root, m.clone()).unwrap());
+        assert!(matches!(
+            CaptureDir::create(&root, m.clone()),
+            Err(DirError::Exists(_))
+        ));
+        let other = Manifest::new("sim", "marble", 8, &plan);
+        assert!(matches!(
+            CaptureDir::open(&root, Some(&other)),
+            Err(DirError::Mismatch { .. })
+        ));
+        fs::write(root.join(MANIFEST), "format = \"something\"\n").unwrap();
+        assert!(matches!(
+            CaptureDir::open(&root, None),
+            Err(DirError::BadManifest { .. })
+        ));
+    }
+}
