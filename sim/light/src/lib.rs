@@ -25,6 +25,7 @@
 //! # Ok::<(), sim_light::Error>(())
 //! ```
 
+pub mod bench;
 pub mod medium;
 pub mod microfacet;
 pub mod rig;

@@ -1,0 +1,135 @@
+//! `qhm sim bench`: photon paths and scattering events per second, in a
+//! homogeneous and a heterogeneous medium, on 1 and 2 threads. Results are
+//! figures, never assertions (the machine is shared).
+
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::Error;
+use crate::rig::RigTruth;
+use crate::sample::SceneDesc;
+use crate::transport::Source;
+use crate::world::{Illumination, LaserOn, SimQuality, World};
+
+/// One medium on one thread count.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    pub medium: String,
+    pub threads: usize,
+    pub photons: u64,
+    pub seconds: f64,
+    pub paths_per_s: f64,
+    /// Real collisions per second (all threads).
+    pub events_per_s: f64,
+    pub events_per_s_per_core: f64,
+    pub null_events_per_s: f64,
+    pub mean_events_per_path: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    pub rows: Vec<BenchRow>,
+    /// events/s on 2 threads over events/s on 1 thread, per medium.
+    pub speedup_1_to_2: Vec<(String, f64)>,
+    /// Seconds to render one full-size pose (7 cameras, laser stripe) at the
+    /// default photon budget, 2 threads; None when skipped.
+    pub full_pose_seconds: Option<f64>,
+    /// Time share of camera splatting in a laser pose (1 thread), in [0, 1].
+    pub splat_share: Option<f64>,
+}
+
+fn medium_world(name: &str) -> Result<World, Error> {
+    let mut desc = SceneDesc::preset(name)?;
+    if let SceneDesc::Sample(s) = &mut desc {
+        // big enough that the walls do not matter
+        s.size_mm = [200.0, 200.0, 100.0];
+    }
+    World::new(desc, RigTruth::nominal(), SimQuality::ci())
+}
+
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool")
+}
+
+/// Run the benchmark; `photons` per measurement (e.g. 200_000).
+pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
+    let mut rows = Vec::new();
+    let pencil = Source::Pencil {
+        origin: Vec3::new(0.0, 0.0, 10.0),
+        dir: -Vec3::Z,
+    };
+    // red: the channel where the sponge's foam and voids differ most
+    for (label, preset, ch) in [
+        ("homogeneous whole-milk", "whole-milk", 1),
+        ("heterogeneous sponge", "sponge", 0),
+    ] {
+        let world = medium_world(preset)?;
+        for threads in [1usize, 2] {
+            let p = pool(threads);
+            // warm up caches and the pool
+            p.install(|| world.trace(&pencil, ch, photons / 10, 99, None));
+            let t0 = Instant::now();
+            let t = p.install(|| world.trace(&pencil, ch, photons, 1, None));
+            let s = t0.elapsed().as_secs_f64();
+            rows.push(BenchRow {
+                medium: label.to_string(),
+                threads,
+                photons,
+                seconds: s,
+                paths_per_s: photons as f64 / s,
+                events_per_s: t.events as f64 / s,
+                events_per_s_per_core: t.events as f64 / s / threads as f64,
+                null_events_per_s: t.null_events as f64 / s,
+                mean_events_per_path: t.events as f64 / photons as f64,
+            });
+        }
+    }
+    let speedup_1_to_2 = rows
+        .chunks(2)
+        .map(|r| (r[0].medium.clone(), r[1].events_per_s / r[0].events_per_s))
+        .collect();
+    let (mut full_pose_seconds, mut splat_share) = (None, None);
+    if full_pose {
+        let world = World::new(
+            SceneDesc::preset("whole-milk")?,
+            RigTruth::nominal(),
+            SimQuality::default_scale(),
+        )?;
+        let illum = Illumination {
+            laser: Some(LaserOn {
+                channel: 1,
+                power: 1.0,
+            }),
+            ..Illumination::default()
+        };
+        let t0 = Instant::now();
+        pool(2).install(|| world.render_pose(&illum, 0xFE, 1))?;
+        full_pose_seconds = Some(t0.elapsed().as_secs_f64());
+        // splat share: a small pose with and without cameras on one thread
+        let small = World::new(
+            SceneDesc::preset("whole-milk")?,
+            RigTruth::nominal(),
+            SimQuality::preview(),
+        )?;
+        let p1 = pool(1);
+        let t0 = Instant::now();
+        let r = p1.install(|| small.render_pose(&illum, 0xFE, 2))?;
+        let with = t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        p1.install(|| small.render_pose(&illum, 0, 2))?;
+        let without = t0.elapsed().as_secs_f64();
+        let _ = r;
+        splat_share = Some(((with - without) / with).clamp(0.0, 1.0));
+    }
+    Ok(BenchReport {
+        rows,
+        speedup_1_to_2,
+        full_pose_seconds,
+        splat_share,
+    })
+}
