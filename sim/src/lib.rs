@@ -19,6 +19,8 @@
 //!   `tokio::io::duplex` stream, with a [`RigHandle`] on the rig.
 //! - [`serve_pty`] / [`serve_pty_until_ctrl_c`]: the same on a
 //!   pseudo-terminal that another process opens as a serial port.
+//! - [`RawHost`]: a minimal raw-frame host on virtual time, for tests and
+//!   benchmarks that must not depend on the real link client.
 //!
 //! Clocks: [`TriggerEvent::at_us`] and [`EmulatedRig::now_us`] are the world
 //! clock (µs since the emulator started); the Controller's own clock (in its
@@ -29,6 +31,7 @@ pub mod link;
 pub mod peripherals;
 pub mod port;
 pub mod pty;
+pub mod raw;
 pub mod rig;
 
 pub use fault::{ByteFaults, FaultConfig, ResetFault, Wire, WireStats};
@@ -39,6 +42,7 @@ pub use peripherals::{
 };
 pub use port::{DEFAULT_BAUD, LinkConfig, SimPort};
 pub use pty::{PtyServer, serve_pty, serve_pty_until_ctrl_c};
+pub use raw::{RawError, RawHost, ReceivedEvent};
 pub use rig::{EmulatedRig, RigConfig};
 
 use serde::{Deserialize, Serialize};

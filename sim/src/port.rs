@@ -40,8 +40,10 @@ pub struct SimPort {
     up: Wire,
     down: Wire,
     faults: FaultConfig,
-    /// Frame delimiters delivered to the MCU so far.
+    /// Non-empty frames (delimiters after data) delivered to the MCU so far.
     frames_in: u32,
+    /// A non-delimiter byte reached the MCU since the last delimiter.
+    in_frame: bool,
     reset_at_us: Option<u64>,
     reset_done: bool,
     disconnected: bool,
@@ -67,6 +69,7 @@ impl SimPort {
             down: Wire::new(link.baud, f.mcu_to_host, f.seed ^ 0x9e37_79b9_7f4a_7c15),
             faults: f,
             frames_in: 0,
+            in_frame: false,
             reset_at_us,
             reset_done: false,
             disconnected: false,
@@ -136,7 +139,9 @@ impl SimPort {
             while let Some((_, b)) = self.up.pop_due(next) {
                 delivered = true;
                 self.rig.receive(&[b]);
-                if b == 0 {
+                if b != 0 {
+                    self.in_frame = true;
+                } else if std::mem::take(&mut self.in_frame) {
                     self.frame_arrived();
                 }
             }
@@ -200,7 +205,7 @@ impl SimPort {
         self.disconnected
     }
 
-    /// Frames (delimiters) the MCU received.
+    /// Non-empty frames the MCU received (valid or not).
     pub fn frames_in(&self) -> u32 {
         self.frames_in
     }
