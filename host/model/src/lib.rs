@@ -1,1 +1,27 @@
-//! The quasi-homogeneous material model: dipole, fitting, file format, report.
+//! The quasi-homogeneous material model (Tong et al. 2005, eq. 4) and
+//! everything that produces or reads it:
+//!
+//! - [`dipole`]: R_d(r), R_total(a') and its inversion, the virtual stripe I_D(d);
+//! - [`profile`]: the s'_t fit of a laser-stripe profile I(d) (paper eq. 6);
+//! - [`model`]: [`MaterialModel`] = dipole + entrance f(w_i) + exiting f_v(x, w_o) + LRF;
+//! - [`format`]: the versioned on-disk directory (docs/model-format.md);
+//! - [`rectified`] and [`fit`]: the whole fit from a rectified capture;
+//! - [`report`]: plots and an HTML page of a model and its fit.
+
+pub mod dipole;
+mod error;
+pub mod quad;
+
+pub use dipole::{Dipole, DipoleParams};
+pub use error::ModelError;
+pub mod model;
+pub mod profile;
+
+pub use model::{EntranceFunction, ExitingFunction, LocalReflectance, MaterialModel, Texture};
+pub use profile::{Profile, ProfileFit, fit_profile};
+pub mod compress;
+mod exrio;
+pub mod format;
+
+pub use exrio::{read_rgb, write_rgb};
+pub use format::{SaveOptions, SaveReport};

@@ -1,0 +1,323 @@
+//! The quasi-homogeneous material model of paper eq. 4 in memory: the global
+//! dipole term, the mesostructure entrance function f(w_i), the mesostructure
+//! exiting function f_v(x, w_o) and the local reflectance function
+//! R(x, w_i, w_o), with the lookups a renderer needs.
+//!
+//! Directions are unit vectors in the local (sample) frame, z = surface normal,
+//! pointing away from the surface. Texture coordinates are in [0, 1)^2 and wrap.
+//! Radiance conventions (docs/model-format.md):
+//! L_o(x, w_o) = ∫ R(x, w_i, w_o) E_n(w_i) dw_i  +  f_v(x, w_o) / π · Σ_i R_d(|x - x_i|) f(w_i) E(x_i) A_i,
+//! where E_n is the irradiance normal to the light and E(x_i) the irradiance on the surface.
+
+use std::f32::consts::{FRAC_PI_2, PI};
+
+use serde::{Deserialize, Serialize};
+
+use crate::dipole::{DipoleParams, fresnel_transmittance_ratio};
+use crate::profile::ChannelFit;
+
+/// An RGB f32 image stored row-major, row 0 first, sampled with wrap-around.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Texture {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<[f32; 3]>,
+}
+
+impl Texture {
+    pub fn filled(width: usize, height: usize, v: [f32; 3]) -> Self {
+        Texture {
+            width,
+            height,
+            data: vec![v; width * height],
+        }
+    }
+    pub fn get(&self, i: usize, j: usize) -> [f32; 3] {
+        self.data[j * self.width + i]
+    }
+    /// Bilinear lookup at `uv` in [0, 1)^2 (texel centres at (i + 0.5)/width), wrapping.
+    pub fn sample(&self, uv: [f32; 2]) -> [f32; 3] {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let x = uv[0] * self.width as f32 - 0.5;
+        let y = uv[1] * self.height as f32 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let wrap = |v: i64, n: i64| v.rem_euclid(n) as usize;
+        let (i0, j0) = (x0 as i64, y0 as i64);
+        let p00 = self.get(wrap(i0, w), wrap(j0, h));
+        let p10 = self.get(wrap(i0 + 1, w), wrap(j0, h));
+        let p01 = self.get(wrap(i0, w), wrap(j0 + 1, h));
+        let p11 = self.get(wrap(i0 + 1, w), wrap(j0 + 1, h));
+        std::array::from_fn(|c| {
+            (p00[c] * (1.0 - fx) + p10[c] * fx) * (1.0 - fy)
+                + (p01[c] * (1.0 - fx) + p11[c] * fx) * fy
+        })
+    }
+}
+
+/// f(w_i) on a regular grid: θ_k = k·(π/2)/(n_theta-1), k < n_theta; φ_m = m·2π/n_phi.
+/// Value 1 at the vertical by definition.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EntranceFunction {
+    pub n_theta: usize,
+    pub n_phi: usize,
+    /// `values[k * n_phi + m]`.
+    pub values: Vec<[f32; 3]>,
+}
+
+impl EntranceFunction {
+    /// Flat smooth dielectric: f = T(θ)/T(0), isotropic in φ.
+    pub fn fresnel(eta: f64, n_theta: usize) -> Self {
+        let values = (0..n_theta)
+            .map(|k| {
+                let theta = k as f64 * std::f64::consts::FRAC_PI_2 / (n_theta - 1) as f64;
+                [fresnel_transmittance_ratio(theta.cos(), eta) as f32; 3]
+            })
+            .collect();
+        EntranceFunction {
+            n_theta,
+            n_phi: 1,
+            values,
+        }
+    }
+    pub fn theta(&self, k: usize) -> f32 {
+        k as f32 * FRAC_PI_2 / (self.n_theta - 1) as f32
+    }
+    pub fn phi(&self, m: usize) -> f32 {
+        m as f32 * 2.0 * PI / self.n_phi as f32
+    }
+    /// Bilinear in (θ, φ), φ wrapping; light from below the surface gives 0
+    /// (the table's θ = 90° row).
+    pub fn eval(&self, wi: [f32; 3]) -> [f32; 3] {
+        let n = norm(wi);
+        if n == 0.0 {
+            return [0.0; 3];
+        }
+        let z = (wi[2] / n).clamp(0.0, 1.0);
+        let theta = z.acos();
+        let phi = wi[1].atan2(wi[0]).rem_euclid(2.0 * PI);
+        let t = theta / FRAC_PI_2 * (self.n_theta - 1) as f32;
+        let k0 = (t.floor() as usize).min(self.n_theta - 1);
+        let k1 = (k0 + 1).min(self.n_theta - 1);
+        let ft = t - k0 as f32;
+        let p = phi / (2.0 * PI) * self.n_phi as f32;
+        let m0 = (p.floor() as usize) % self.n_phi;
+        let m1 = (m0 + 1) % self.n_phi;
+        let fp = p - p.floor();
+        let v = |k: usize, m: usize| self.values[k * self.n_phi + m];
+        std::array::from_fn(|c| {
+            let a = v(k0, m0)[c] * (1.0 - fp) + v(k0, m1)[c] * fp;
+            let b = v(k1, m0)[c] * (1.0 - fp) + v(k1, m1)[c] * fp;
+            a * (1.0 - ft) + b * ft
+        })
+    }
+}
+
+/// f_v(x, w_o): one texture per sampled view direction.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExitingFunction {
+    pub views: Vec<[f32; 3]>,
+    pub maps: Vec<Texture>,
+}
+
+impl ExitingFunction {
+    pub fn eval(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
+        let dirs: Vec<([f32; 3], [f32; 3])> = self.views.iter().map(|&v| (v, [0.0; 3])).collect();
+        blend(&nearest(&dirs, wo, [0.0; 3], 3), |i| {
+            self.maps[i].sample(uv)
+        })
+    }
+}
+
+/// One LRF sample: the light and view directions of a lamp image.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LrfSample {
+    pub light: [f32; 3],
+    pub view: [f32; 3],
+}
+
+/// R(x, w_i, w_o): one texture per (light, view) pair, in sr^-1: outgoing
+/// radiance per unit irradiance measured normal to the light (cos θ_i included).
+/// Negative values are kept (paper 4.2). Empty = no local reflectance.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct LocalReflectance {
+    pub samples: Vec<LrfSample>,
+    pub maps: Vec<Texture>,
+}
+
+impl LocalReflectance {
+    pub fn eval(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+        if self.samples.is_empty() {
+            return [0.0; 3];
+        }
+        let dirs: Vec<([f32; 3], [f32; 3])> =
+            self.samples.iter().map(|s| (s.light, s.view)).collect();
+        blend(&nearest(&dirs, wi, wo, 4), |i| self.maps[i].sample(uv))
+    }
+}
+
+/// Fit diagnostics kept with the model for the report (paper Fig. 5).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FitDiagnostics {
+    /// Per channel: the measured profile, range used and result.
+    pub channels: Vec<ChannelFit>,
+    /// Measured f at the laser directions: (direction, RGB value).
+    pub entrance_samples: Vec<([f32; 3], [f32; 3])>,
+    /// Free-form notes (counts, fallbacks).
+    pub notes: Vec<String>,
+}
+
+/// The four-part material model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialModel {
+    pub dipole: DipoleParams,
+    pub entrance: EntranceFunction,
+    pub exiting: ExitingFunction,
+    pub lrf: LocalReflectance,
+    /// Texel size on the reference plane, mm.
+    pub texel_mm: f32,
+    pub width: u32,
+    pub height: u32,
+    pub diagnostics: Option<FitDiagnostics>,
+}
+
+impl MaterialModel {
+    /// A homogeneous material with a flat smooth surface: f = T(θ)/T(0),
+    /// f_v = 1, LRF = 0, a 1×1 texture of 1 mm.
+    pub fn homogeneous(dipole: DipoleParams) -> Self {
+        MaterialModel {
+            dipole,
+            entrance: EntranceFunction::fresnel(dipole.eta, 19),
+            exiting: ExitingFunction {
+                views: vec![[0.0, 0.0, 1.0]],
+                maps: vec![Texture::filled(1, 1, [1.0; 3])],
+            },
+            lrf: LocalReflectance::default(),
+            texel_mm: 1.0,
+            width: 1,
+            height: 1,
+            diagnostics: None,
+        }
+    }
+    /// f(w_i), `wi` in the local frame.
+    pub fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
+        self.entrance.eval(wi)
+    }
+    /// f_v(x, w_o) at texture coordinate `uv` (wrapping).
+    pub fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
+        self.exiting.eval(uv, wo)
+    }
+    /// R(x, w_i, w_o) in sr^-1 (see [`LocalReflectance`]).
+    pub fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+        self.lrf.eval(uv, wi, wo)
+    }
+    pub fn texture_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+    pub fn texel_mm(&self) -> f32 {
+        self.texel_mm
+    }
+}
+
+pub(crate) fn norm(v: [f32; 3]) -> f32 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+fn angle(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let (na, nb) = (norm(a), norm(b));
+    if na == 0.0 || nb == 0.0 {
+        return 0.0;
+    }
+    ((a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb))
+        .clamp(-1.0, 1.0)
+        .acos()
+}
+
+/// The `k` samples nearest to (a, b) in summed angle, with inverse-square
+/// distance weights (an exact hit takes all the weight).
+fn nearest(dirs: &[([f32; 3], [f32; 3])], a: [f32; 3], b: [f32; 3], k: usize) -> Vec<(usize, f32)> {
+    let mut d: Vec<(usize, f32)> = dirs
+        .iter()
+        .enumerate()
+        .map(|(i, &(x, y))| {
+            let db = if norm(y) == 0.0 { 0.0 } else { angle(y, b) };
+            (i, angle(x, a) + db)
+        })
+        .collect();
+    d.sort_by(|x, y| x.1.total_cmp(&y.1));
+    d.truncate(k);
+    if d[0].1 < 1e-5 {
+        return vec![(d[0].0, 1.0)];
+    }
+    let w: Vec<(usize, f32)> = d.iter().map(|&(i, x)| (i, 1.0 / (x * x))).collect();
+    let sum: f32 = w.iter().map(|x| x.1).sum();
+    w.into_iter().map(|(i, x)| (i, x / sum)).collect()
+}
+
+fn blend(weights: &[(usize, f32)], f: impl Fn(usize) -> [f32; 3]) -> [f32; 3] {
+    let mut out = [0.0; 3];
+    for &(i, w) in weights {
+        let v = f(i);
+        for c in 0..3 {
+            out[c] += w * v[c];
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params() -> DipoleParams {
+        DipoleParams {
+            alpha_prime: [0.99, 0.98, 0.9],
+            sigma_t_prime: [1.0, 1.5, 2.0],
+            eta: 1.3,
+        }
+    }
+
+    #[test]
+    fn homogeneous_model_lookups() {
+        let m = MaterialModel::homogeneous(params());
+        assert_eq!(m.entrance([0.0, 0.0, 1.0]), [1.0; 3]);
+        let t60 = fresnel_transmittance_ratio(0.5, 1.3) as f32;
+        let w60 = [(60f32).to_radians().sin(), 0.0, 0.5];
+        let f = m.entrance(w60);
+        // 19-row table: 60° is a node, so exact.
+        assert!((f[0] - t60).abs() < 1e-5, "{f:?} vs {t60}");
+        assert_eq!(m.entrance([0.0, 0.0, -1.0])[1], m.entrance.values[18][1]);
+        assert_eq!(m.exiting([0.3, 0.7], [0.5, 0.5, 0.7]), [1.0; 3]);
+        assert_eq!(
+            m.lrf([0.1, 0.1], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]),
+            [0.0; 3]
+        );
+        assert_eq!(m.texture_size(), (1, 1));
+    }
+
+    #[test]
+    fn texture_wraps_and_interpolates() {
+        let mut t = Texture::filled(2, 1, [0.0; 3]);
+        t.data[1] = [1.0; 3];
+        // Texel centres at u = 0.25 (0) and 0.75 (1); u = 0.5 halfway; u = 0 halfway by wrap.
+        assert_eq!(t.sample([0.25, 0.5])[0], 0.0);
+        assert_eq!(t.sample([0.75, 0.5])[0], 1.0);
+        assert!((t.sample([0.5, 0.5])[0] - 0.5).abs() < 1e-6);
+        assert!((t.sample([0.0, 0.5])[0] - 0.5).abs() < 1e-6);
+        assert!((t.sample([1.0, 0.5])[0] - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn exiting_picks_the_exact_view_and_blends_between() {
+        let views = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]];
+        let maps = vec![
+            Texture::filled(1, 1, [1.0; 3]),
+            Texture::filled(1, 1, [3.0; 3]),
+        ];
+        let e = ExitingFunction { views, maps };
+        assert_eq!(e.eval([0.0, 0.0], [0.0, 0.0, 1.0])[0], 1.0);
+        assert_eq!(e.eval([0.0, 0.0], [1.0, 0.0, 0.0])[0], 3.0);
+        let mid = e.eval([0.0, 0.0], [1.0, 0.0, 1.0])[0];
+        assert!((mid - 2.0).abs() < 1e-4, "{mid}");
+    }
+}
