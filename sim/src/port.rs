@@ -56,8 +56,9 @@ impl SimPort {
     }
 
     /// An existing rig behind a line.
-    pub fn with_rig(rig: EmulatedRig, link: LinkConfig) -> Result<Self, SimError> {
+    pub fn with_rig(mut rig: EmulatedRig, link: LinkConfig) -> Result<Self, SimError> {
         link.faults.validate()?;
+        rig.set_uart_baud(link.baud);
         let f = link.faults;
         let reset_at_us = match f.reset {
             Some(ResetFault::AtUs(t)) => Some(t),

@@ -53,6 +53,12 @@ pub struct RawHost {
     pub bad_frames: u64,
     /// Retransmissions made by `call`.
     pub retransmissions: u64,
+    /// Acknowledge delivered events before each command (default on), as a
+    /// host must: unacknowledged events are re-sent every 50 ms and would
+    /// fill the line.
+    pub auto_ack: bool,
+    /// Newest event sequence the MCU confirmed as acknowledged.
+    acked: u16,
 }
 
 impl std::fmt::Debug for RawHost {
@@ -79,6 +85,8 @@ impl RawHost {
             last_heartbeat_us: None,
             bad_frames: 0,
             retransmissions: 0,
+            auto_ack: true,
+            acked: 0,
         }
     }
 
@@ -112,6 +120,21 @@ impl RawHost {
         timeout_us: u64,
         tries: u32,
     ) -> Result<Result<Reply, CommandError>, RawError> {
+        let upto = self.events_rx.ack_upto();
+        if self.auto_ack
+            && upto != self.acked
+            && !matches!(
+                command,
+                Command::AckEvents { .. } | Command::Heartbeat { .. } | Command::Identify
+            )
+        {
+            // Refused only before the handshake; the command's own ack says so too.
+            let _ = self.call_with(Command::AckEvents { upto }, timeout_us, tries)?;
+        }
+        let acks = match command {
+            Command::AckEvents { upto } | Command::Heartbeat { event_ack: upto } => Some(upto),
+            _ => None,
+        };
         let seq = self.next_seq;
         self.next_seq = seq.wrapping_add(1);
         for attempt in 0..tries {
@@ -128,6 +151,9 @@ impl RawHost {
                 if let Some(i) = self.acks.iter().position(|(s, _)| *s == seq) {
                     let (_, result) = self.acks.swap_remove(i);
                     self.acks.clear();
+                    if let (Some(upto), Ok(_)) = (acks, &result) {
+                        self.acked = upto;
+                    }
                     return Ok(result);
                 }
             }
@@ -218,6 +244,7 @@ impl RawHost {
                         // A new boot numbers its events from the start again.
                         self.boot_id = Some(boot_id);
                         self.events_rx.reset(eseq.wrapping_sub(1));
+                        self.acked = eseq.wrapping_sub(1);
                     }
                     if self.events_rx.accept(eseq) {
                         self.events.push(ReceivedEvent {

@@ -99,8 +99,15 @@ pub struct EmulatedRig {
     boot_rng: Pcg64,
     boot_id: u32,
     boots: u32,
-    /// Bytes the MCU sent, with the world time they left the Controller.
+    /// Bytes the MCU's UART started sending, with the world time it did.
     tx: Vec<(u64, u8)>,
+    /// Time one byte occupies the UART, µs (0 = unpaced: take all at once).
+    uart_byte_us: f64,
+    /// When the UART finishes its last byte, µs.
+    uart_free_us: f64,
+    /// World time of the previous Controller call: bytes still queued in
+    /// the Controller were queued then at the latest.
+    last_call_us: u64,
 }
 
 impl std::fmt::Debug for EmulatedRig {
@@ -131,6 +138,9 @@ impl EmulatedRig {
             boot_id,
             boots: 1,
             tx: Vec::new(),
+            uart_byte_us: 0.0,
+            uart_free_us: 0.0,
+            last_call_us: 0,
             cfg,
         };
         rig.poll();
@@ -160,11 +170,20 @@ impl EmulatedRig {
         self.boots
     }
 
+    /// Pace the MCU's output at a UART's rate (8N1; 0 = unpaced). The
+    /// Controller's transmit queue then fills and overflows as on the board
+    /// when the host does not keep up (e.g. never acknowledges events).
+    pub fn set_uart_baud(&mut self, baud: u32) {
+        self.uart_byte_us = if baud == 0 { 0.0 } else { 10.0e6 / baud as f64 };
+    }
+
     /// Bytes from the host arrive at the MCU's UART now.
     pub fn receive(&mut self, bytes: &[u8]) {
         let t = self.mcu_now_us();
         self.io.set_now(self.now_us);
+        self.drain_tx();
         self.controller.receive(t, bytes, &mut self.io);
+        self.last_call_us = self.now_us;
         self.drain_tx();
         // A command may have started something: poll at once.
         self.next_poll_us = self.now_us;
@@ -200,7 +219,9 @@ impl EmulatedRig {
     fn poll(&mut self) {
         let t = self.mcu_now_us();
         self.io.set_now(self.now_us);
+        self.drain_tx();
         let deadline = self.controller.poll(t, &mut self.io);
+        self.last_call_us = self.now_us;
         // Never poll twice at the same instant (a Controller that keeps asking
         // for "now" would hang the emulator), never sleep past the input scan.
         self.next_poll_us = deadline
@@ -211,18 +232,36 @@ impl EmulatedRig {
         self.drain_tx();
     }
 
-    /// Move the Controller's output into `tx`; honour a requested reset after
-    /// its reply has gone out.
+    /// Move the Controller's output into `tx` as fast as the UART sends it;
+    /// honour a requested reset once its reply has been taken.
     fn drain_tx(&mut self) {
-        let mut buf = [0u8; 256];
-        loop {
-            let n = self.controller.take_tx(&mut buf);
-            if n == 0 {
-                break;
+        let now = self.now_us;
+        if self.uart_byte_us == 0.0 {
+            let mut buf = [0u8; 256];
+            loop {
+                let n = self.controller.take_tx(&mut buf).min(buf.len());
+                if n == 0 {
+                    break;
+                }
+                self.tx.extend(buf[..n].iter().map(|&b| (now, b)));
             }
-            let now = self.now_us;
-            self.tx
-                .extend(buf[..n.min(buf.len())].iter().map(|&b| (now, b)));
+        } else {
+            // Byte by byte at the UART's pace, from when each could start
+            // (the UART is free and the byte was queued) up to now.
+            let mut one = [0u8; 1];
+            loop {
+                let start = self.uart_free_us.max(self.last_call_us as f64);
+                if start > now as f64 {
+                    // More may be queued: come back when the UART is free.
+                    self.next_poll_us = self.next_poll_us.min(start.ceil() as u64);
+                    break;
+                }
+                if self.controller.take_tx(&mut one) == 0 {
+                    break;
+                }
+                self.tx.push((start.ceil() as u64, one[0]));
+                self.uart_free_us = start + self.uart_byte_us;
+            }
         }
         if self.controller.reset_requested() {
             self.reboot(false);
@@ -242,7 +281,8 @@ impl EmulatedRig {
 
     /// Reset the MCU now (fault injection; `watchdog` says the watchdog bit
     /// is set in the reset cause). Bytes the old Controller had not handed to
-    /// the UART are lost, as they would be.
+    /// the UART are lost, as they would be (with an unpaced UART everything
+    /// was handed over at once, so nothing is).
     pub fn reset_mcu(&mut self, watchdog: bool) {
         let mut buf = [0u8; 256];
         while self.controller.take_tx(&mut buf) > 0 {}

@@ -369,6 +369,8 @@ fn reset_in_the_middle_of_a_sweep_leaves_the_laser_off() {
         ..FaultConfig::none()
     };
     let mut h = host_with(RigConfig::seeded(7), link);
+    // No AckEvents frames in between, so the sweep is frame 6.
+    h.auto_ack = false;
     let boot0 = h.port.rig().boot_id();
     ok(&mut h, Command::Heartbeat { event_ack: 0 });
     ok(
@@ -407,6 +409,7 @@ fn reset_in_the_middle_of_a_sweep_leaves_the_laser_off() {
     assert_eq!(snap.triggers, 0);
     assert!(snap.axes.iter().all(|a| !a.enabled));
     let boot1 = rig.boot_id();
+    h.run_for(20_000);
     assert!(
         h.events.iter().any(|e| e.event
             == Event::Booted {
