@@ -75,6 +75,15 @@ impl EventStream {
             }),
         }
     }
+
+    /// The next event if one is waiting.
+    pub fn try_recv(&mut self) -> Option<Result<LinkEvent, LinkError>> {
+        match self.rx.try_recv() {
+            Ok(e) => Some(Ok(e)),
+            Err(broadcast::error::TryRecvError::Lagged(n)) => Some(Err(LinkError::Lagged(n))),
+            Err(_) => None,
+        }
+    }
 }
 
 struct Session {
@@ -386,7 +395,8 @@ impl Link {
         .await
     }
 
-    /// Move in radians (rad/s, rad/s^2); `relative` moves from the current target.
+    /// Move in radians (rad/s, rad/s^2; 0 = the axis maximum); `relative`
+    /// moves from the current position.
     pub async fn move_rad(
         &self,
         axis: Axis,
@@ -616,9 +626,9 @@ fn urad(rad: f64, what: &str) -> Result<i32, LinkError> {
 
 fn urad_u32(rad: f64, what: &str) -> Result<u32, LinkError> {
     let u = (rad * 1e6).round();
-    if !u.is_finite() || u <= 0.0 || u > u32::MAX as f64 {
+    if !u.is_finite() || u < 0.0 || u > u32::MAX as f64 {
         return Err(LinkError::BadArgument(format!(
-            "{what} {rad} must be positive and below {} per second",
+            "{what} {rad} must be in 0..{} (0 = the axis maximum)",
             u32::MAX as f64 / 1e6
         )));
     }
@@ -635,7 +645,7 @@ mod tests {
         assert_eq!(urad(-0.5e-6, "a").unwrap(), -1);
         assert!(urad(f64::NAN, "a").is_err());
         assert!(urad(3000.0, "a").is_err());
-        assert!(urad_u32(0.0, "s").is_err());
+        assert_eq!(urad_u32(0.0, "s").unwrap(), 0);
         assert!(urad_u32(-1.0, "s").is_err());
         assert_eq!(urad_u32(0.25, "s").unwrap(), 250_000);
     }

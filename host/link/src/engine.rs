@@ -21,6 +21,10 @@ use crate::{LinkConfig, LinkError, LinkEvent, LinkStats};
 /// still accepted (the MCU's queue is far shorter than this).
 const EVENT_WINDOW: u16 = 1024;
 
+/// Acknowledge before the next command once this many events are unacknowledged
+/// (the firmware's queue holds 32).
+const ACK_EAGER: u16 = 8;
+
 /// What the reader and writer tasks tell the engine.
 pub(crate) enum FromWire {
     Frame(McuFrame),
@@ -259,6 +263,10 @@ impl Engine {
             Command::Heartbeat { ref mut event_ack } => *event_ack = self.receiver.ack_upto(),
             Command::Reset => return self.reset().await,
             _ => {}
+        }
+        // Keep the MCU's bounded event queue short under a stream of commands.
+        if self.receiver.ack_upto().wrapping_sub(self.acked) >= ACK_EAGER {
+            self.heartbeat().await;
         }
         let mut resynced = false;
         loop {
