@@ -31,11 +31,19 @@ impl Intrinsics {
     /// for the mild distortion of long lenses).
     pub fn pixel_to_normalised(&self, p: DVec2) -> DVec2 {
         let xd = DVec2::new((p.x - self.cx) / self.fx, (p.y - self.cy) / self.fy);
+        if self.k1 == 0.0 && self.k2 == 0.0 {
+            return xd;
+        }
         let mut x = xd;
         for _ in 0..20 {
             let r2 = x.length_squared();
             let d = 1.0 + self.k1 * r2 + self.k2 * r2 * r2;
-            x = xd / d;
+            let nx = xd / d;
+            let done = (nx - x).length_squared() < 1e-24;
+            x = nx;
+            if done {
+                break;
+            }
         }
         x
     }

@@ -18,7 +18,7 @@
 
 //pub mod calibration;
 pub mod camera;
-//pub mod corners;
+pub mod corners;
 //pub mod exr_io;
 pub mod hdr;
 pub mod image;
@@ -29,7 +29,7 @@ pub mod lm;
 //pub mod rectify;
 pub mod response;
 pub mod synth;
-//pub mod zhang;
+pub mod zhang;
 
 //pub use calibration::Calibration;
 pub use camera::CameraModel;

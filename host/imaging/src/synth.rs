@@ -158,6 +158,7 @@ pub fn render_checkerboard(
 ) -> Image8 {
     let centre = cam.centre();
     let normal = board_rot.col(2);
+    let rt = cam.rotation_matrix().transpose();
     let rows: Vec<Vec<u8>> = (0..height)
         .into_par_iter()
         .map(|y| {
@@ -171,7 +172,8 @@ pub fn render_checkerboard(
                                 x as f64 - 0.375 + 0.25 * sx as f64,
                                 y as f64 - 0.375 + 0.25 * sy as f64,
                             );
-                            let d = cam.ray(p);
+                            let xn = cam.intrinsics.pixel_to_normalised(p);
+                            let d = rt * DVec3::new(xn.x, xn.y, 1.0);
                             let denom = d.dot(normal);
                             let a = if denom.abs() < 1e-12 {
                                 0.3
