@@ -1,1 +1,40 @@
-//! Rendering arbitrary meshes with an acquired material model.
+//! Rendering arbitrary meshes with an acquired quasi-homogeneous material
+//! model (Tong et al. 2005, section 5 and eq. 4).
+//!
+//! - [`Scene`]: a [`Mesh`] (OBJ, PLY, or built-in: slab, sphere, teapot,
+//!   bread) with its [`bvh::Bvh`], a pinhole [`Camera`], [`Light`]s and an
+//!   [`EnvMap`]; [`SceneFile`] reads the scene TOML.
+//! - [`Material`]: the four parts of eq. 4 as the renderer sees them,
+//!   implemented by `qhm_model::MaterialModel` and by [`Homogeneous`].
+//! - [`render_scene`]: pass 1 ([`points`]: Poisson-disk surface samples and
+//!   their f-attenuated irradiance), the Jensen-Buhler octree ([`octree`]),
+//!   texture synthesis ([`synth`]), and per-pixel shading ([`render`]).
+//! - [`Image`]: EXR and tone-mapped PNG output; [`export`]: pbrt-v4 and
+//!   Mitsuba 3 snippets of the homogeneous part.
+
+pub mod builtin;
+pub mod bvh;
+pub mod camera;
+pub mod distrib;
+mod error;
+pub mod export;
+pub mod film;
+pub mod light;
+pub mod material;
+pub mod mesh;
+pub mod octree;
+pub mod ply;
+pub mod points;
+pub mod render;
+pub mod scene;
+pub mod synth;
+mod teapot_data;
+
+pub use camera::Camera;
+pub use error::{MeshError, RenderError};
+pub use film::Image;
+pub use light::{EnvMap, Light};
+pub use material::{Homogeneous, Material};
+pub use mesh::Mesh;
+pub use render::{Mode, RenderSettings, RenderStats, render_scene, render_scene_stats};
+pub use scene::{Scene, SceneFile};

@@ -1,0 +1,477 @@
+//! Triangle meshes: loading (OBJ via tobj, PLY via [`crate::ply`]),
+//! validation (finite values, indices, manifold edges, degenerate faces),
+//! and the attributes the renderer needs: per-vertex normals (generated from
+//! area-weighted face normals when absent) and per-corner surface texture
+//! coordinates in millimetres (box-projected when absent).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+
+use crate::error::MeshError;
+
+/// A validated triangle mesh in millimetres.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub positions: Vec<Vec3>,
+    /// Per-vertex unit normals; a zero vector means "use the face normal".
+    pub normals: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Per-triangle-corner texture coordinates, in mm along the surface.
+    pub uvs: Vec<[Vec2; 3]>,
+    /// Per-triangle unit tangent along +u (texture x) on the surface.
+    pub tangents: Vec<Vec3>,
+    /// Faces dropped at load because their area was zero.
+    pub dropped_degenerate: usize,
+}
+
+/// Raw mesh data as a loader reads it, before validation.
+#[derive(Clone, Debug, Default)]
+pub struct MeshInput {
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Per-vertex texture coordinates in file units (usually 0..1).
+    pub uvs: Option<Vec<[f32; 2]>>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl MeshInput {
+    /// Multiplies all positions by `s` (file units -> mm).
+    pub fn scale(&mut self, s: f32) {
+        for p in &mut self.positions {
+            for c in p.iter_mut() {
+                *c *= s;
+            }
+        }
+    }
+}
+
+impl Mesh {
+    /// Loads an OBJ or PLY file (by extension), positions in file units.
+    pub fn load_input(path: &Path) -> Result<MeshInput, MeshError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
+        if !path.exists() {
+            return Err(MeshError::Io {
+                path: path.to_path_buf(),
+                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+            });
+        }
+        match ext.as_deref() {
+            Some("obj") => load_obj(path),
+            Some("ply") => {
+                let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+                crate::ply::parse(&bytes)
+            }
+            _ => Err(MeshError::UnsupportedFormat(path.to_path_buf())),
+        }
+    }
+
+    /// Loads and validates a mesh file; `scale` converts file units to mm and
+    /// `uv_scale_mm` is the surface length one file UV unit spans.
+    pub fn load(path: &Path, scale: f32, uv_scale_mm: Option<f32>) -> Result<Mesh, MeshError> {
+        let mut input = Self::load_input(path)?;
+        input.scale(scale);
+        Mesh::build(input, uv_scale_mm)
+    }
+
+    /// Validates raw data and derives normals, UVs and tangents.
+    /// `uv_scale_mm`: mm per file UV unit; `None` means the bounding-box
+    /// diagonal (one UV unit spans the object).
+    pub fn build(input: MeshInput, uv_scale_mm: Option<f32>) -> Result<Mesh, MeshError> {
+        let MeshInput {
+            positions,
+            normals,
+            uvs,
+            triangles,
+        } = input;
+        let n = positions.len();
+        for (i, p) in positions.iter().enumerate() {
+            if !p.iter().all(|c| c.is_finite()) {
+                return Err(MeshError::NonFinite {
+                    what: "vertex",
+                    index: i,
+                });
+            }
+        }
+        if let Some(ns) = &normals {
+            if ns.len() != n {
+                return Err(MeshError::AttributeCount {
+                    what: "normal",
+                    got: ns.len(),
+                    expected: n,
+                });
+            }
+            if let Some(i) = ns.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+                return Err(MeshError::NonFinite {
+                    what: "normal",
+                    index: i,
+                });
+            }
+        }
+        if let Some(us) = &uvs {
+            if us.len() != n {
+                return Err(MeshError::AttributeCount {
+                    what: "uv",
+                    got: us.len(),
+                    expected: n,
+                });
+            }
+            if let Some(i) = us.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+                return Err(MeshError::NonFinite {
+                    what: "uv",
+                    index: i,
+                });
+            }
+        }
+        for (f, t) in triangles.iter().enumerate() {
+            for &i in t {
+                if i as usize >= n {
+                    return Err(MeshError::IndexOutOfRange {
+                        face: f,
+                        index: i,
+                        count: n,
+                    });
+                }
+            }
+        }
+        let positions: Vec<Vec3> = positions.iter().map(|p| Vec3::from(*p)).collect();
+
+        // Weld coincident positions (split vertices at UV seams, poles) so
+        // topology and generated normals see one vertex.
+        let (lo, hi) = bounds(&positions);
+        let diag = (hi - lo).length().max(f32::MIN_POSITIVE);
+        let weld = weld_ids(&positions, diag * 1e-6);
+
+        // Drop faces of zero area (relative to the mesh size) or with two
+        // corners welded together.
+        let min_area = (diag * 1e-7).powi(2);
+        let mut kept = Vec::with_capacity(triangles.len());
+        let mut degenerate = 0;
+        for t in &triangles {
+            let [a, b, c] = t.map(|i| positions[i as usize]);
+            let [wa, wb, wc] = t.map(|i| weld[i as usize]);
+            if 0.5 * (b - a).cross(c - a).length() > min_area && wa != wb && wb != wc && wa != wc {
+                kept.push(*t);
+            } else {
+                degenerate += 1;
+            }
+        }
+        if kept.is_empty() {
+            return Err(MeshError::NoFaces { degenerate });
+        }
+        let triangles = kept;
+        check_manifold(&triangles, &weld, &positions)?;
+
+        let normals = match normals {
+            Some(ns) => ns
+                .iter()
+                .map(|v| Vec3::from(*v).normalize_or_zero())
+                .collect(),
+            None => generated_normals(&positions, &triangles, &weld),
+        };
+
+        let uvs: Vec<[Vec2; 3]> = match uvs {
+            Some(us) => {
+                let s = uv_scale_mm.unwrap_or(diag);
+                triangles
+                    .iter()
+                    .map(|t| t.map(|i| Vec2::from(us[i as usize]) * s))
+                    .collect()
+            }
+            None => triangles
+                .iter()
+                .map(|t| box_projection(t.map(|i| positions[i as usize])))
+                .collect(),
+        };
+        let tangents = triangles
+            .iter()
+            .zip(&uvs)
+            .map(|(t, uv)| triangle_tangent(t.map(|i| positions[i as usize]), *uv))
+            .collect();
+        Ok(Mesh {
+            positions,
+            normals,
+            triangles,
+            uvs,
+            tangents,
+            dropped_degenerate: degenerate,
+        })
+    }
+
+    /// The three corners of triangle `t`.
+    pub fn corners(&self, t: usize) -> [Vec3; 3] {
+        self.triangles[t].map(|i| self.positions[i as usize])
+    }
+
+    /// Area of triangle `t`, mm^2.
+    pub fn area(&self, t: usize) -> f32 {
+        let [a, b, c] = self.corners(t);
+        0.5 * (b - a).cross(c - a).length()
+    }
+
+    /// Total surface area, mm^2.
+    pub fn total_area(&self) -> f32 {
+        (0..self.triangles.len()).map(|t| self.area(t)).sum()
+    }
+
+    /// Axis-aligned bounds of all vertices.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        bounds(&self.positions)
+    }
+
+    /// Unit geometric normal of triangle `t` (winding order).
+    pub fn face_normal(&self, t: usize) -> Vec3 {
+        let [a, b, c] = self.corners(t);
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+
+    /// Interpolated shading normal at barycentrics (b1, b2); falls back to the
+    /// face normal where vertex normals vanish or cancel.
+    pub fn shading_normal(&self, t: usize, b1: f32, b2: f32) -> Vec3 {
+        let [i0, i1, i2] = self.triangles[t].map(|i| i as usize);
+        let n = self.normals[i0] * (1.0 - b1 - b2) + self.normals[i1] * b1 + self.normals[i2] * b2;
+        let ng = self.face_normal(t);
+        match n.try_normalize() {
+            // Keep the interpolated normal on the same side as the face normal.
+            Some(n) if n.dot(ng).abs() > 1e-3 => {
+                if n.dot(ng) < 0.0 {
+                    -n
+                } else {
+                    n
+                }
+            }
+            _ => ng,
+        }
+    }
+
+    /// Surface texture coordinate (mm) at barycentrics (b1, b2).
+    pub fn uv(&self, t: usize, b1: f32, b2: f32) -> Vec2 {
+        let [a, b, c] = self.uvs[t];
+        a * (1.0 - b1 - b2) + b * b1 + c * b2
+    }
+}
+
+/// Axis-aligned bounds of a point set.
+pub fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
+    points.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    )
+}
+
+fn load_obj(path: &Path) -> Result<MeshInput, MeshError> {
+    let opts = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| MeshError::Obj {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut out = MeshInput::default();
+    let all_normals = models
+        .iter()
+        .all(|m| m.mesh.normals.len() == m.mesh.positions.len());
+    let all_uvs = models
+        .iter()
+        .all(|m| m.mesh.texcoords.len() / 2 == m.mesh.positions.len() / 3);
+    let mut normals = Vec::new();
+    let mut uvs = Vec::new();
+    for m in &models {
+        let base = out.positions.len() as u32;
+        let mesh = &m.mesh;
+        out.positions
+            .extend(mesh.positions.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
+        if all_normals {
+            normals.extend(mesh.normals.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
+        }
+        if all_uvs {
+            uvs.extend(mesh.texcoords.chunks_exact(2).map(|p| [p[0], p[1]]));
+        }
+        out.triangles.extend(
+            mesh.indices
+                .chunks_exact(3)
+                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
+        );
+    }
+    if all_normals && !normals.is_empty() {
+        out.normals = Some(normals);
+    }
+    if all_uvs && !uvs.is_empty() {
+        out.uvs = Some(uvs);
+    }
+    Ok(out)
+}
+
+/// Maps each vertex to the id of the first vertex within `tol` (grid hash).
+fn weld_ids(positions: &[Vec3], tol: f32) -> Vec<u32> {
+    let inv = 1.0 / tol.max(f32::MIN_POSITIVE);
+    let mut map: HashMap<[i64; 3], u32> = HashMap::with_capacity(positions.len());
+    positions
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let key = [
+                (p.x * inv).round() as i64,
+                (p.y * inv).round() as i64,
+                (p.z * inv).round() as i64,
+            ];
+            *map.entry(key).or_insert(i as u32)
+        })
+        .collect()
+}
+
+fn check_manifold(triangles: &[[u32; 3]], weld: &[u32], pos: &[Vec3]) -> Result<(), MeshError> {
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(triangles.len() * 3);
+    for t in triangles {
+        let w = t.map(|i| weld[i as usize]);
+        for k in 0..3 {
+            let (a, b) = (w[k], w[(k + 1) % 3]);
+            if a == b {
+                continue;
+            }
+            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    let bad: Vec<_> = edges.iter().filter(|(_, c)| **c > 2).collect();
+    if let Some(((a, _), _)) = bad.first() {
+        return Err(MeshError::NonManifold {
+            edges: bad.len(),
+            at: pos[*a as usize].to_array(),
+        });
+    }
+    Ok(())
+}
+
+fn generated_normals(positions: &[Vec3], triangles: &[[u32; 3]], weld: &[u32]) -> Vec<Vec3> {
+    let mut acc = vec![Vec3::ZERO; positions.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        // Cross product length = 2 * area: area weighting for free.
+        let n = (b - a).cross(c - a);
+        for &i in t {
+            acc[weld[i as usize] as usize] += n;
+        }
+    }
+    (0..positions.len())
+        .map(|i| acc[weld[i] as usize].normalize_or_zero())
+        .collect()
+}
+
+/// Box projection: drop the face normal's dominant axis, keep the other two
+/// coordinates as the texture coordinate (mm).
+fn box_projection(p: [Vec3; 3]) -> [Vec2; 3] {
+    let n = (p[1] - p[0]).cross(p[2] - p[0]).abs();
+    p.map(|q| {
+        if n.z >= n.x && n.z >= n.y {
+            Vec2::new(q.x, q.y)
+        } else if n.x >= n.y {
+            Vec2::new(q.y, q.z)
+        } else {
+            Vec2::new(q.x, q.z)
+        }
+    })
+}
+
+/// dp/du of a triangle from its UV mapping; any in-plane direction when the
+/// mapping is degenerate.
+fn triangle_tangent(p: [Vec3; 3], uv: [Vec2; 3]) -> Vec3 {
+    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+    let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
+    let det = d1.x * d2.y - d1.y * d2.x;
+    let t = if det.abs() > 1e-12 {
+        (e1 * d2.y - e2 * d1.y) / det
+    } else {
+        e1
+    };
+    t.normalize_or_zero()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad() -> MeshInput {
+        MeshInput {
+            positions: vec![[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn quad_gets_normals_uvs_and_tangents() {
+        let m = Mesh::build(quad(), None).unwrap();
+        assert_eq!(m.normals[0], Vec3::Z);
+        assert!((m.total_area() - 1.0).abs() < 1e-6);
+        assert!((m.tangents[0] - Vec3::X).length() < 1e-6);
+        assert_eq!(m.uv(0, 1.0, 0.0), Vec2::new(1.0, 0.0));
+    }
+
+    #[test]
+    fn nan_vertex_is_an_error() {
+        let mut q = quad();
+        q.positions[2][1] = f32::NAN;
+        assert!(matches!(
+            Mesh::build(q, None),
+            Err(MeshError::NonFinite { index: 2, .. })
+        ));
+    }
+
+    #[test]
+    fn bad_index_is_an_error() {
+        let mut q = quad();
+        q.triangles[1][2] = 9;
+        assert!(matches!(
+            Mesh::build(q, None),
+            Err(MeshError::IndexOutOfRange { index: 9, .. })
+        ));
+    }
+
+    #[test]
+    fn only_degenerate_faces_is_an_error() {
+        let q = MeshInput {
+            positions: vec![[0., 0., 0.], [1., 0., 0.], [2., 0., 0.]],
+            triangles: vec![[0, 1, 2]],
+            ..Default::default()
+        };
+        assert!(matches!(
+            Mesh::build(q, None),
+            Err(MeshError::NoFaces { degenerate: 1 })
+        ));
+    }
+
+    #[test]
+    fn three_faces_on_one_edge_is_non_manifold() {
+        let q = MeshInput {
+            positions: vec![
+                [0., 0., 0.],
+                [1., 0., 0.],
+                [0., 1., 0.],
+                [0., -1., 0.],
+                [0., 0., 1.],
+            ],
+            triangles: vec![[0, 1, 2], [0, 1, 3], [0, 1, 4]],
+            ..Default::default()
+        };
+        assert!(matches!(
+            Mesh::build(q, None),
+            Err(MeshError::NonManifold { edges: 1, .. })
+        ));
+    }
+
+    #[test]
+    fn missing_file_is_an_error() {
+        let e = Mesh::load(Path::new("/nonexistent/x.obj"), 1.0, None).unwrap_err();
+        assert!(e.to_string().contains("cannot read mesh"));
+    }
+}
