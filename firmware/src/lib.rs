@@ -16,7 +16,10 @@
 extern crate std;
 
 pub mod axis;
+#[cfg(feature = "stm32")]
+pub mod board;
 pub mod controller;
+pub mod debounce;
 pub mod galvo;
 pub mod io;
 pub mod profile;
