@@ -19,14 +19,14 @@
 //pub mod calibration;
 pub mod camera;
 pub mod corners;
-//pub mod exr_io;
+pub mod exr_io;
 pub mod hdr;
 pub mod image;
 pub mod linalg;
 pub mod lm;
 //pub mod photometric;
 //pub mod rectified;
-//pub mod rectify;
+pub mod rectify;
 pub mod response;
 pub mod synth;
 pub mod zhang;
