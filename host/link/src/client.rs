@@ -238,7 +238,10 @@ impl Link {
             receiver: Default::default(),
             acked: 0,
             synced: false,
-            fresh_window: false,
+            held: Vec::new(),
+            gap_since: None,
+            gap_check_due: false,
+            booted_base: None,
             boot_id: self
                 .inner
                 .shared

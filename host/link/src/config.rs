@@ -20,6 +20,9 @@ pub struct LinkConfig {
     pub event_capacity: usize,
     /// Unacknowledged events are acknowledged after at most this delay when idle.
     pub ack_delay: Duration,
+    /// An event missing (later ones arrived) this long makes the link ask the
+    /// MCU whether it dropped events (it re-sends unacknowledged ones every 50 ms).
+    pub event_gap_timeout: Duration,
 }
 
 impl Default for LinkConfig {
@@ -32,6 +35,7 @@ impl Default for LinkConfig {
             tries: 10,
             event_capacity: 4096,
             ack_delay: Duration::from_millis(5),
+            event_gap_timeout: Duration::from_millis(250),
         }
     }
 }
@@ -55,6 +59,7 @@ impl LinkConfig {
             min_rto: scale(d.min_rto),
             max_rto: scale(d.max_rto),
             ack_delay: scale(d.ack_delay),
+            event_gap_timeout: scale(d.event_gap_timeout),
             ..d
         }
     }

@@ -17,9 +17,8 @@ use tokio::time::{sleep, sleep_until};
 use crate::rto::RttEstimator;
 use crate::{LinkConfig, LinkError, LinkEvent, LinkStats};
 
-/// After a new boot is seen, events this far behind the MCU's newest one are
-/// still accepted (the MCU's queue is far shorter than this).
-const EVENT_WINDOW: u16 = 1024;
+/// Out-of-order events kept while waiting for a missing one.
+const MAX_HELD: usize = 64;
 
 /// Acknowledge before the next command once this many events are unacknowledged
 /// (the firmware's queue holds 32).
@@ -66,8 +65,14 @@ pub(crate) struct Engine {
     pub acked: u16,
     /// Identified and status read since the last (re)boot seen.
     pub synced: bool,
-    /// Suppress the "missed events" notice for the first event after a new boot.
-    pub fresh_window: bool,
+    /// Events after a gap, waiting for the missing one: (eseq, at_us, event).
+    pub held: Vec<(u16, u64, Event)>,
+    /// Since when the oldest gap has been open.
+    pub gap_since: Option<Instant>,
+    /// The gap is older than the timeout: a status read decides.
+    pub gap_check_due: bool,
+    /// Numbering already re-based on this new boot's Booted event.
+    pub booted_base: Option<u32>,
     pub boot_id: Option<u32>,
     pub dropped_seen: u16,
     pub active_moves: [Option<Command>; 2],
@@ -91,6 +96,12 @@ impl Engine {
                 let err = self.recover_reset(None).await;
                 self.report_pending(err);
             }
+            if self.gap_check_due && self.synced && self.dead.is_none() {
+                self.resolve_gap().await;
+            }
+            let gap_deadline = self
+                .gap_since
+                .map(|t| tokio::time::Instant::from_std(t + self.config.event_gap_timeout));
             let alive = self.dead.is_none();
             let ack_due = alive && self.synced && self.receiver.ack_upto() != self.acked;
             tokio::select! {
@@ -102,6 +113,7 @@ impl Engine {
                     }
                 }
                 _ = sleep(self.config.ack_delay), if ack_due => self.heartbeat().await,
+                _ = sleep_until(gap_deadline.unwrap_or_else(tokio::time::Instant::now)), if gap_deadline.is_some() && alive => self.check_gap(),
                 req = self.requests.recv() => match req {
                     None => break,
                     Some(r) => {
@@ -264,6 +276,9 @@ impl Engine {
             Command::Reset => return self.reset().await,
             _ => {}
         }
+        if self.gap_check_due {
+            self.resolve_gap().await;
+        }
         // Keep the MCU's bounded event queue short under a stream of commands.
         if self.receiver.ack_upto().wrapping_sub(self.acked) >= ACK_EAGER {
             self.heartbeat().await;
@@ -396,10 +411,15 @@ impl Engine {
             }
         };
         if self.boot_id != Some(id.boot_id) {
-            self.receiver
-                .reset(status.last_eseq.wrapping_sub(EVENT_WINDOW));
-            self.acked = self.receiver.ack_upto();
-            self.fresh_window = true;
+            // New numbering: deliver from here on. Events raised before this
+            // handshake are not delivered (the status just read holds their
+            // effect); acknowledge them so the MCU stops re-sending.
+            if self.booted_base.take() != Some(id.boot_id) {
+                self.receiver.reset(status.last_eseq);
+                self.acked = status.last_eseq.wrapping_sub(1);
+            }
+            self.held.clear();
+            self.gap_since = None;
             self.dropped_seen = status.events_dropped;
             self.boot_id = Some(id.boot_id);
         }
@@ -486,6 +506,10 @@ impl Engine {
         }
     }
 
+    /// An event frame arrived: deliver in order exactly once. A frame lost
+    /// on the line leaves a gap: later events wait in `held` (and are not
+    /// acknowledged) until the MCU re-sends the missing one. Only when the
+    /// MCU's status confirms it dropped events is the gap skipped and reported.
     fn on_event(&mut self, eseq: u16, at_us: u64, event: Event) {
         if !self.synced {
             // Not yet re-based on this boot's numbering: the MCU re-sends.
@@ -495,23 +519,106 @@ impl Engine {
         if let Event::Booted { boot_id, .. } = event
             && self.boot_id != Some(boot_id)
         {
+            // A new boot numbers from 1 again: start over at its Booted event.
             self.receiver.reset(eseq.wrapping_sub(1));
+            self.held.clear();
+            self.gap_since = None;
+            self.booted_base = Some(boot_id);
             self.reset_seen = true;
         }
-        let expected = self.receiver.ack_upto().wrapping_add(1);
-        if !self.receiver.accept(eseq) {
+        let d = eseq.wrapping_sub(self.receiver.ack_upto());
+        if d == 0 || d >= 0x8000 || self.held.iter().any(|h| h.0 == eseq) {
             self.stats(|s| s.duplicate_events += 1);
             return;
         }
-        if eseq != expected && !std::mem::take(&mut self.fresh_window) {
-            let count = eseq.wrapping_sub(expected);
-            tracing::warn!("{count} events missing before eseq {eseq}");
-            let _ = self.events.send(LinkEvent::EventsMissed {
-                before: eseq,
-                count,
-            });
+        if d == 1 {
+            self.deliver(eseq, at_us, event);
+            self.drain_held();
+        } else {
+            if self.held.len() < MAX_HELD {
+                self.held.push((eseq, at_us, event));
+            }
+            self.gap_since.get_or_insert_with(Instant::now);
         }
-        self.fresh_window = false;
+        self.check_gap();
+    }
+
+    /// Deliver held events that are now next in order.
+    fn drain_held(&mut self) {
+        let mut progressed = false;
+        loop {
+            let last = self.receiver.ack_upto();
+            self.held.retain(|h| {
+                let d = h.0.wrapping_sub(last);
+                d != 0 && d < 0x8000
+            });
+            let next = last.wrapping_add(1);
+            match self.held.iter().position(|h| h.0 == next) {
+                Some(i) => {
+                    let (eseq, at_us, event) = self.held.remove(i);
+                    self.deliver(eseq, at_us, event);
+                    progressed = true;
+                }
+                None => break,
+            }
+        }
+        if self.held.is_empty() {
+            self.gap_since = None;
+        } else if progressed || self.gap_since.is_none() {
+            self.gap_since = Some(Instant::now());
+        }
+    }
+
+    /// A gap older than the timeout: ask the MCU whether it dropped events.
+    fn check_gap(&mut self) {
+        if self
+            .gap_since
+            .is_some_and(|t| t.elapsed() >= self.config.event_gap_timeout)
+        {
+            self.gap_check_due = true;
+        }
+    }
+
+    /// The MCU confirmed dropped events: skip to the oldest held one.
+    fn skip_gap(&mut self) {
+        let last = self.receiver.ack_upto();
+        let Some(first) = self
+            .held
+            .iter()
+            .map(|h| h.0)
+            .min_by_key(|e| e.wrapping_sub(last))
+        else {
+            return;
+        };
+        let count = first.wrapping_sub(last).wrapping_sub(1);
+        tracing::warn!("{count} events lost before eseq {first} (MCU queue overflow)");
+        let _ = self.events.send(LinkEvent::EventsMissed {
+            before: first,
+            count,
+        });
+        self.receiver.reset(first.wrapping_sub(1));
+        self.drain_held();
+    }
+
+    /// Resolve a stale gap with a status read (idle loop and before calls).
+    async fn resolve_gap(&mut self) {
+        self.gap_check_due = false;
+        let before = self.dropped_seen;
+        if let Ok(Ok(Reply::Status(status))) = self.transact(&Command::Status).await {
+            self.note_status(&status);
+            if status.events_dropped != before {
+                self.skip_gap();
+                return;
+            }
+        }
+        // Not dropped: the MCU will re-send; look again after another timeout.
+        if !self.held.is_empty() {
+            self.gap_since = Some(Instant::now());
+        }
+    }
+
+    fn deliver(&mut self, eseq: u16, at_us: u64, event: Event) {
+        self.receiver.accept(eseq);
         match event {
             Event::MotionDone {
                 axis,
