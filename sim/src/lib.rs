@@ -90,7 +90,7 @@ impl SimConfig {
     /// Defaults with every seed derived from `seed`.
     pub fn seeded(seed: u64) -> Self {
         let mut link = LinkConfig::default();
-        link.faults.seed = seed ^ 0xfa_017;
+        link.faults.seed = seed ^ 0x000f_a017;
         Self {
             rig: RigConfig::seeded(seed),
             link,

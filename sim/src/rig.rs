@@ -54,7 +54,7 @@ impl RigConfig {
         Self {
             seed,
             physical: PhysicalConfig {
-                seed: seed ^ 0x5eed_0f_a7e5,
+                seed: seed ^ 0x005e_ed0f_a7e5,
                 ..PhysicalConfig::default()
             },
             ..Self::default()
