@@ -192,6 +192,8 @@ async fn ten_thousand_commands_exactly_once_over_a_faulty_line() {
         ..ByteFaults::NONE
     };
     cfg.link.faults = FaultConfig::symmetric(77, faults);
+    // No line delay: the run is about loss, not about the UART rate.
+    cfg.link.baud = 0;
     let (stream, rig) = spawn_in_process(&cfg).unwrap();
     let mut triggers_seen = rig.subscribe_triggers();
     let stream = Duplicator::new(stream, 0.01, 99);
