@@ -91,6 +91,9 @@ pub struct FaultConfig {
     pub disconnect_at_us: Option<u64>,
     /// Reset the MCU once.
     pub reset: Option<ResetFault>,
+    /// The injected reset is a watchdog reset: the new boot reports it and
+    /// latches `FaultCause::Watchdog` until the host clears it.
+    pub reset_by_watchdog: bool,
 }
 
 impl FaultConfig {

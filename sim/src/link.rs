@@ -141,6 +141,14 @@ impl RigHandle {
         });
     }
 
+    /// Reset the MCU now as its watchdog would (the new boot latches
+    /// `FaultCause::Watchdog`).
+    pub fn watchdog_reset(&self) {
+        self.with(|p| {
+            p.rig_mut().reset_mcu(true);
+        });
+    }
+
     /// Close the link now: the host reads EOF (in-process) or a hangup (pty).
     pub fn disconnect(&self) {
         self.with(|p| p.disconnect());

@@ -241,6 +241,12 @@ impl Peripherals {
         a.start_rad + mechanics(axis).rad_from_steps(a.steps)
     }
 
+    /// Turn an axis by hand (the operator, with the driver off or on):
+    /// the physical angle changes without any step.
+    pub fn turn_by_hand(&mut self, axis: Axis, rad: f64) {
+        self.axes[axis.index()].start_rad += rad;
+    }
+
     pub fn set_interlock(&mut self, closed: bool) {
         self.account_safety(self.now_us);
         self.interlock_closed = closed;

@@ -133,7 +133,7 @@ impl SimPort {
             }
             if !self.reset_done && self.reset_at_us.is_some_and(|r| r <= next) {
                 self.reset_done = true;
-                self.rig.reset_mcu(false);
+                self.rig.reset_mcu(self.faults.reset_by_watchdog);
                 self.forward_tx();
             }
             let mut delivered = false;
@@ -168,7 +168,7 @@ impl SimPort {
             if delay_us == 0 {
                 // Executed, but the reply dies in the MCU's transmit buffer.
                 self.reset_done = true;
-                self.rig.reset_mcu(false);
+                self.rig.reset_mcu(self.faults.reset_by_watchdog);
             } else {
                 self.reset_at_us = Some(self.rig.now_us() + delay_us);
             }

@@ -455,3 +455,129 @@ fn reset_command_reboots_after_its_ack() {
     let rig = h.port.rig();
     assert!(rig.mcu_now_us() <= 15_000 && rig.mcu_now_us() < rig.now_us());
 }
+
+#[test]
+fn estop_stops_everything_at_once_and_stays_latched_while_pressed() {
+    let mut h = host(10);
+    ok(&mut h, Command::Lamps { mask: 0x0f });
+    ok(
+        &mut h,
+        Command::Move {
+            axis: Axis::Turntable,
+            target: MoveTarget::Relative(3_000_000),
+            speed_urad_s: 0,
+            accel_urad_s2: 0,
+        },
+    );
+    h.run_for(1_000_000);
+    let moving = h.port.rig().snapshot().axes[0];
+    assert!(moving.enabled && moving.step_count > 1000);
+    h.port.rig_mut().set_estop(true);
+    h.run_for(2_000);
+    let stopped = h.port.rig().snapshot();
+    h.run_for(200_000);
+    let later = h.port.rig().snapshot();
+    // No deceleration ramp: not a single step after the input scan saw it.
+    assert_eq!(later.axes[0].steps, stopped.axes[0].steps);
+    assert!(later.axes.iter().all(|a| !a.enabled));
+    assert_eq!(later.state.lamps, 0);
+    assert_eq!(later.state.laser, None);
+    assert!(
+        !h.events_where(|e| *e
+            == Event::Fault {
+                cause: FaultCause::EStop
+            })
+        .is_empty()
+    );
+    assert_eq!(
+        h.call(Command::ClearFault),
+        Ok(Err(CommandError::CauseActive(FaultCause::EStop)))
+    );
+    h.port.rig_mut().set_estop(false);
+    h.run_for(2_000);
+    ok(&mut h, Command::ClearFault);
+    ok(&mut h, Command::Lamps { mask: 1 });
+}
+
+#[test]
+fn arc_end_switch_stops_an_unhomed_arc_beyond_its_soft_limit() {
+    // Not homed, the arc believes it is at 0 while it physically sits near
+    // its positive end: a relative move within the soft limits runs it into
+    // the end-of-travel switch.
+    let mut h = host_at([0.0, 2.9]);
+    ok(
+        &mut h,
+        Command::Move {
+            axis: Axis::LightArc,
+            target: MoveTarget::Relative(600_000),
+            speed_urad_s: 0,
+            accel_urad_s2: 0,
+        },
+    );
+    let e = h
+        .run_until_event(5_000_000, |e| matches!(e, Event::Fault { .. }))
+        .expect("limit fault");
+    assert_eq!(
+        e.event,
+        Event::Fault {
+            cause: FaultCause::LimitHit(Axis::LightArc)
+        }
+    );
+    h.run_for(1_000_000);
+    let snap = h.port.rig().snapshot();
+    let switch_at = LIGHT_ARC.soft_max + h.port.rig().peripherals().config().arc_limit_margin_rad;
+    let arc = snap.state.light_arc_rad;
+    // Decelerated to rest past the switch (v^2 / 2a at most), driver off.
+    let v = LIGHT_ARC.max_speed;
+    assert!(arc > switch_at && arc < switch_at + v * v / (2.0 * LIGHT_ARC.max_accel) + 0.01);
+    assert!(arc < 2.9 + 0.6, "stopped before the commanded target");
+    assert!(!snap.axes[1].enabled && !snap.inputs.arc_limit_ok);
+    assert_eq!(
+        h.call(Command::ClearFault),
+        Ok(Err(CommandError::CauseActive(FaultCause::LimitHit(
+            Axis::LightArc
+        ))))
+    );
+    // The operator turns the arc back off the switch; then the fault clears.
+    h.port
+        .rig_mut()
+        .peripherals_mut()
+        .turn_by_hand(Axis::LightArc, -0.5);
+    h.run_for(2_000);
+    ok(&mut h, Command::ClearFault);
+}
+
+#[test]
+fn watchdog_reset_latches_a_fault_until_cleared() {
+    let link = LinkConfig {
+        faults: FaultConfig {
+            reset: Some(ResetFault::AtUs(50_000)),
+            reset_by_watchdog: true,
+            ..FaultConfig::none()
+        },
+        ..LinkConfig::default()
+    };
+    let mut h = host_with(RigConfig::seeded(11), link);
+    h.run_for(100_000);
+    assert!(h.port.reset_fired());
+    let boot1 = h.port.rig().boot_id();
+    assert!(h.events.iter().any(|e| e.event
+        == Event::Booted {
+            boot_id: boot1,
+            watchdog: true
+        }));
+    assert!(
+        !h.events_where(|e| *e
+            == Event::Fault {
+                cause: FaultCause::Watchdog
+            })
+        .is_empty()
+    );
+    assert!(matches!(h.identify(), Ok(Ok(Reply::Identity(_)))));
+    assert_eq!(
+        h.call(Command::Lamps { mask: 1 }),
+        Ok(Err(CommandError::Faulted(FaultCause::Watchdog)))
+    );
+    ok(&mut h, Command::ClearFault);
+    ok(&mut h, Command::Lamps { mask: 1 });
+}
