@@ -221,3 +221,88 @@ impl SimPort {
         (self.up.stats(), self.down.stats())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{Command, FrameDecoder, HostFrame, MAX_FRAME, McuFrame, encode_frame};
+
+    fn frame(seq: u16, command: Command) -> Vec<u8> {
+        let mut buf = [0u8; MAX_FRAME];
+        let n = encode_frame(&HostFrame { seq, command }, &mut buf).unwrap();
+        buf[..n].to_vec()
+    }
+
+    /// Run until the ack of `seq` arrives; returns the virtual time taken
+    /// and the ack's length on the wire.
+    fn until_ack(p: &mut SimPort, seq: u16) -> (u64, usize) {
+        let t0 = p.now_us();
+        let mut dec = FrameDecoder::new();
+        loop {
+            p.advance(10);
+            let mut ack = None;
+            dec.push_slice::<McuFrame>(&p.host_read(), |f| {
+                if let Ok(f @ McuFrame::Ack { seq: s, .. }) = f
+                    && s == seq
+                {
+                    ack = Some(f);
+                }
+            });
+            if let Some(f) = ack {
+                let mut buf = [0u8; MAX_FRAME];
+                return (p.now_us() - t0, encode_frame(&f, &mut buf).unwrap());
+            }
+            assert!(p.now_us() - t0 < 1_000_000, "no ack");
+        }
+    }
+
+    /// Round trip of a Status command on a quiet line (events acknowledged).
+    fn status_rtt(baud: u32) -> (u64, usize) {
+        let link = LinkConfig {
+            baud,
+            ..LinkConfig::default()
+        };
+        let mut p = SimPort::new(RigConfig::seeded(1), link).unwrap();
+        p.host_write(&frame(1, Command::Identify));
+        until_ack(&mut p, 1);
+        // Booted is event 1: acknowledge it so nothing is re-sent.
+        p.host_write(&frame(2, Command::AckEvents { upto: 1 }));
+        until_ack(&mut p, 2);
+        p.advance(200_000);
+        p.host_read();
+        let req = frame(3, Command::Status);
+        p.host_write(&req);
+        let (rtt, ack) = until_ack(&mut p, 3);
+        (rtt, req.len() + ack)
+    }
+
+    #[test]
+    fn round_trip_costs_the_bytes_on_the_line() {
+        let (rtt, bytes) = status_rtt(115_200);
+        let ideal = bytes as f64 * 10.0e6 / 115_200.0;
+        // Within the 10 µs polling of this test and a µs of rounding per byte.
+        assert!(
+            rtt as f64 >= ideal - 1.0 && (rtt as f64) < ideal + 20.0 + bytes as f64,
+            "{rtt} µs for {bytes} bytes, ideal {ideal:.0}"
+        );
+        let (rtt, _) = status_rtt(0);
+        assert!(rtt <= 10, "instant line: {rtt} µs");
+    }
+
+    #[test]
+    fn frames_are_counted_and_a_disconnect_silences_the_line() {
+        let mut p = SimPort::new(RigConfig::seeded(2), LinkConfig::default()).unwrap();
+        let f = frame(1, Command::Identify);
+        p.host_write(&[0, 0, 0]);
+        p.host_write(&f);
+        p.host_write(&[0x55, 0x66, 0]);
+        p.advance(10_000);
+        assert_eq!(p.frames_in(), 2, "empty frames are not frames");
+        assert!(!p.host_read().is_empty());
+        p.disconnect();
+        p.host_write(&f);
+        p.advance(100_000);
+        assert!(p.host_read().is_empty());
+        assert_eq!(p.frames_in(), 2);
+    }
+}

@@ -351,3 +351,102 @@ impl EmulatedRig {
         rx
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{Command, Event, FrameDecoder, HostFrame, MAX_FRAME, McuFrame, encode_frame};
+
+    fn frames(bytes: &[u8]) -> Vec<McuFrame> {
+        let mut dec = FrameDecoder::new();
+        let mut out = Vec::new();
+        dec.push_slice::<McuFrame>(bytes, |f| out.extend(f.ok()));
+        out
+    }
+
+    fn send(rig: &mut EmulatedRig, seq: u16, command: Command) {
+        let mut buf = [0u8; MAX_FRAME];
+        let n = encode_frame(&HostFrame { seq, command }, &mut buf).unwrap();
+        rig.receive(&buf[..n]);
+    }
+
+    #[test]
+    fn boots_with_a_seeded_id_and_announces_it() {
+        let mut a = EmulatedRig::new(RigConfig::seeded(3)).unwrap();
+        let b = EmulatedRig::new(RigConfig::seeded(3)).unwrap();
+        let c = EmulatedRig::new(RigConfig::seeded(4)).unwrap();
+        assert_eq!(a.boot_id(), b.boot_id());
+        assert_ne!(a.boot_id(), c.boot_id());
+        let booted = frames(&a.take_tx());
+        let id = a.boot_id();
+        assert!(booted.iter().any(|f| matches!(
+            f,
+            McuFrame::Event { event: Event::Booted { boot_id, watchdog: false }, .. } if *boot_id == id
+        )));
+    }
+
+    #[test]
+    fn idle_controller_is_still_polled_every_input_scan() {
+        let mut rig = EmulatedRig::new(RigConfig::default()).unwrap();
+        rig.advance(10_000);
+        for _ in 0..100 {
+            let gap = rig.next_poll_us() - rig.now_us();
+            assert!((1..=1_000).contains(&gap), "gap {gap}");
+            rig.advance(333);
+        }
+    }
+
+    #[test]
+    fn reset_reboots_with_a_new_id_own_clock_and_safe_outputs() {
+        let mut rig = EmulatedRig::new(RigConfig::seeded(5)).unwrap();
+        send(&mut rig, 1, Command::Identify);
+        send(&mut rig, 2, Command::Lamps { mask: 0xff });
+        rig.advance(5_000);
+        assert_eq!(rig.rig_state().lamps, 0xff);
+        let (id0, t0) = (rig.boot_id(), rig.now_us());
+        rig.reset_mcu(false);
+        assert_eq!(rig.boots(), 2);
+        assert_ne!(rig.boot_id(), id0);
+        assert_eq!(rig.rig_state().lamps, 0);
+        rig.advance(2_000);
+        assert_eq!((rig.now_us(), rig.mcu_now_us()), (t0 + 2_000, 2_000));
+        assert_eq!(rig.status().boot_id, rig.boot_id());
+        assert!(rig.status().uptime_us <= 2_000);
+    }
+
+    #[test]
+    fn the_reset_command_is_answered_before_the_reboot() {
+        let mut rig = EmulatedRig::new(RigConfig::seeded(6)).unwrap();
+        send(&mut rig, 1, Command::Identify);
+        rig.take_tx();
+        send(&mut rig, 2, Command::Reset);
+        let out = frames(&rig.take_tx());
+        assert!(
+            matches!(
+                out[0],
+                McuFrame::Ack {
+                    seq: 2,
+                    result: Ok(_)
+                }
+            ),
+            "{out:?}"
+        );
+        assert_eq!(rig.boots(), 2);
+    }
+
+    #[test]
+    fn uart_pacing_spaces_the_output_at_the_baud_rate() {
+        let mut rig = EmulatedRig::new(RigConfig::seeded(7)).unwrap();
+        rig.set_uart_baud(115_200);
+        rig.advance(100_000);
+        rig.take_tx();
+        send(&mut rig, 1, Command::Identify);
+        rig.advance(20_000);
+        let tx = rig.take_tx_timed();
+        assert!(tx.len() > 30, "identity reply");
+        for w in tx.windows(2) {
+            let dt = w[1].0 - w[0].0;
+            assert!((86..=88).contains(&dt), "{dt} µs between bytes");
+        }
+    }
+}
