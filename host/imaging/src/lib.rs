@@ -16,7 +16,7 @@
 //! Units: mm, radians, linear RGB f32. Pixel coordinates have (0, 0) at the
 //! centre of the top-left pixel.
 
-//pub mod calibration;
+pub mod calibration;
 pub mod camera;
 pub mod corners;
 pub mod exr_io;
@@ -24,14 +24,14 @@ pub mod hdr;
 pub mod image;
 pub mod linalg;
 pub mod lm;
-//pub mod photometric;
-//pub mod rectified;
+pub mod photometric;
+pub mod rectified;
 pub mod rectify;
 pub mod response;
 pub mod synth;
 pub mod zhang;
 
-//pub use calibration::Calibration;
+pub use calibration::Calibration;
 pub use camera::CameraModel;
 pub use image::{Image8, ImageF};
 pub use response::ResponseCurve;

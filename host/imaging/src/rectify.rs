@@ -71,6 +71,20 @@ pub fn rectify(
     grid: &Grid,
     scale: &[f32],
 ) -> ImageF {
+    rectify_at_height(img, cam, axis, theta, grid, scale, 0.0)
+}
+
+/// As [`rectify`], onto the plane z = `plane_z` of the sample frame (calibration
+/// targets with a raised surface).
+pub fn rectify_at_height(
+    img: &ImageF,
+    cam: &CameraModel,
+    axis: DVec3,
+    theta: f64,
+    grid: &Grid,
+    scale: &[f32],
+    plane_z: f64,
+) -> ImageF {
     let to_world = sample_to_world(axis, theta);
     let ch = img.channels;
     let mut out = ImageF::zeros(grid.width, grid.height, ch);
@@ -80,7 +94,7 @@ pub fn rectify(
         .for_each(|(j, row)| {
             for i in 0..grid.width {
                 let p = grid.texel_centre(i, j);
-                let pw = to_world * DVec3::new(p.x, p.y, 0.0);
+                let pw = to_world * DVec3::new(p.x, p.y, plane_z);
                 let px = cam.project(pw);
                 for c in 0..ch {
                     row[i * ch + c] = match px {
