@@ -143,8 +143,18 @@ pub struct Wire {
 }
 
 impl Wire {
-    /// A line at `baud` (8N1; 0 = no delay) with the given faults.
+    /// A line at `baud` (8N1; 0 = no delay) with the given faults. Rates
+    /// outside `0..=1` are clamped (NaN counts as 0); configurations are
+    /// checked with [`FaultConfig::validate`] before they get here.
     pub fn new(baud: u32, faults: ByteFaults, seed: u64) -> Self {
+        let rate = |p: f64| if p.is_nan() { 0.0 } else { p.clamp(0.0, 1.0) };
+        let faults = ByteFaults {
+            drop: rate(faults.drop),
+            corrupt: rate(faults.corrupt),
+            duplicate: rate(faults.duplicate),
+            delay: rate(faults.delay),
+            delay_max_us: faults.delay_max_us,
+        };
         Self {
             byte_us: if baud == 0 { 0.0 } else { 10.0e6 / baud as f64 },
             faults,
@@ -294,6 +304,21 @@ mod tests {
         w.take_due(u64::MAX, &mut out);
         assert_eq!(out, [1, 2, 3, 4]);
         assert_eq!(w.stats().delayed, 4);
+    }
+
+    #[test]
+    fn a_wire_built_from_unchecked_rates_does_not_panic() {
+        let f = ByteFaults {
+            drop: f64::NAN,
+            corrupt: 7.0,
+            duplicate: -1.0,
+            delay: 0.5,
+            delay_max_us: u64::MAX / 4,
+        };
+        let mut w = Wire::new(9600, f, 1);
+        w.send(0, &[1, 2, 3]);
+        assert_eq!(w.stats().corrupted, 3);
+        assert_eq!(w.stats().dropped + w.stats().duplicated, 0);
     }
 
     #[test]

@@ -59,7 +59,9 @@ impl VirtualClock {
     /// Wall time until the virtual clock reads `t_us` (zero if past).
     pub fn wall_until(&self, t_us: u64) -> Duration {
         let now = self.now_us();
-        Duration::from_secs_f64(t_us.saturating_sub(now) as f64 * 1e-6 / self.speed)
+        let s = t_us.saturating_sub(now) as f64 * 1e-6 / self.speed;
+        // A speed of 0 (or NaN) would stop the clock: wait "forever".
+        Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
     }
 }
 

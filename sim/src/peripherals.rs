@@ -197,9 +197,9 @@ impl Peripherals {
         // turn through its end switches, so the rig is parked (as an operator
         // leaves it) on the positive side of the home cam, clear of the end
         // switch; the cam itself is a possible start.
-        let arc_lo = LIGHT_ARC.home_offset - cfg.home_width_rad / 2.0;
-        let arc =
-            cfg.start_rad[1].unwrap_or_else(|| rng.random_range(arc_lo..LIGHT_ARC.soft_max - 0.3));
+        let arc_hi = LIGHT_ARC.soft_max - 0.3;
+        let arc_lo = (LIGHT_ARC.home_offset - cfg.home_width_rad.abs() / 2.0).min(arc_hi - 1e-3);
+        let arc = cfg.start_rad[1].unwrap_or_else(|| rng.random_range(arc_lo..arc_hi));
         Self {
             cfg,
             now_us: 0,

@@ -74,6 +74,12 @@ impl RigConfig {
                 "physical.home_width_rad = {w} must be in (0, 1) rad"
             )));
         }
+        let m = self.physical.arc_limit_margin_rad;
+        if !(m.is_finite() && (0.0..1.0).contains(&m)) {
+            return Err(SimError::BadConfig(format!(
+                "physical.arc_limit_margin_rad = {m} must be in [0, 1) rad"
+            )));
+        }
         for a in self.physical.start_rad.iter().flatten() {
             if !a.is_finite() {
                 return Err(SimError::BadConfig(

@@ -128,11 +128,21 @@ fn pty_serves_a_real_serial_device_and_hangs_up_on_disconnect() {
         .timeout(Duration::from_millis(50))
         .open()
         .expect("open the pty as a serial port");
+    // A plain thread (no async runtime) consumes trigger events.
+    let mut triggers = server.handle().subscribe_triggers();
+    let camera = std::thread::spawn(move || triggers.blocking_recv());
     let mut dec = FrameDecoder::new();
     let mut buf = [0u8; 512];
     for (seq, cmd) in [
         (7u16, Command::Identify),
         (8, Command::Lamps { mask: 0x5a }),
+        (
+            9,
+            Command::Trigger {
+                mask: 0x40,
+                pulse_us: 3_000,
+            },
+        ),
     ] {
         port.write_all(&frame(seq, cmd)).unwrap();
         let end = Instant::now() + Duration::from_secs(5);
@@ -151,6 +161,10 @@ fn pty_serves_a_real_serial_device_and_hangs_up_on_disconnect() {
         assert!(reply.is_ok(), "{reply:?}");
     }
     assert_eq!(server.handle().rig_state().lamps, 0x5a);
+    let ev = camera.join().unwrap().expect("a trigger event");
+    assert_eq!(ev.mask, 0x40);
+    assert!((3_000..3_500).contains(&ev.pulse_us), "{}", ev.pulse_us);
+    assert_eq!(ev.state.lamps, 0x5a);
     server.handle().disconnect();
     let end = Instant::now() + Duration::from_secs(5);
     loop {
