@@ -377,21 +377,23 @@ fn circle(n: u32, centred: bool) -> Vec<f64> {
         .collect()
 }
 
-/// Galvo angles (mechanical) putting the stripe at evenly spaced offsets over
-/// +-half_width on the plane, for a laser clamped at `elevation`. The mirror
-/// turns the beam by twice its angle; a beam from distance D at elevation e
-/// moves its hit point by D * delta / sin(e) for a small turn delta.
+/// Galvo angles (mechanical, rad) putting the stripe at `n` positions over
+/// +-half_width on the plane, for a laser clamped at `elevation`: evenly
+/// spaced in angle, as the MCU's `GalvoSweep` steps. The mirror turns the beam
+/// by twice its angle; a beam from distance D at elevation e moves its hit
+/// point by about D * delta / sin(e) for a turn delta.
 pub fn galvo_angles(n: u16, half_width_mm: f64, elevation: f64) -> Vec<f64> {
     let d = NOMINAL_GEOMETRY.laser.distance;
+    let max = (0.5 * (half_width_mm * elevation.sin() / d).atan()).min(GALVO.max_angle);
+    // Whole microradians, as the wire carries them.
+    let urad = |a: f64| (a * 1e6).round() / 1e6;
     (0..n)
         .map(|k| {
-            let offset = if n == 1 {
+            if n == 1 {
                 0.0
             } else {
-                -half_width_mm + 2.0 * half_width_mm * k as f64 / (n - 1) as f64
-            };
-            let beam = (offset * elevation.sin() / d).atan();
-            (0.5 * beam).clamp(-GALVO.max_angle, GALVO.max_angle)
+                urad(-max + 2.0 * max * k as f64 / (n - 1) as f64)
+            }
         })
         .collect()
 }

@@ -1,0 +1,549 @@
+//! The built-in simulated rig (`--sim`, `qhm demo`): the emulated MCU behind
+//! an in-process link, and simulated cameras fired by its trigger lines.
+//!
+//! [`SimRig::start`] returns what a real rig gives the host: a [`Link`] and
+//! cameras. Only [`SimHandle`] (the operator's hands: the laser clamp, the
+//! turntable load; and fault injection for tests) knows it is simulated.
+//!
+//! The cameras: one thread (the "hub") receives every [`TriggerEvent`] the
+//! emulated MCU publishes with the physical rig state at the rising edge,
+//! renders that pose once with the sim-light Monte Carlo (rayon inside) for
+//! every camera on the trigger mask, caches the radiance (so the exposures of
+//! a bracket and all cameras share it), and exposes each armed camera's
+//! sensor with the exposure and gain the host set. Rig, sample and cameras
+//! share the emulator's virtual clock: a frame's `trigger_us` is the edge's
+//! virtual time.
+//!
+//! Determinism: the Monte Carlo seed derives from the run seed and the pose
+//! (angles, light, trigger mask, scene), the sensor noise seed from the run
+//! seed, the frame's tag (its plan position) and the camera, never from time or
+//! arrival order; so a resumed capture reproduces the frames of an
+//! uninterrupted one bit for bit.
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::Duration;
+
+use qhm_link::{Link, LinkConfig, LinkError};
+use sim::{FaultConfig, RigHandle, RigState, SimConfig, TriggerEvent};
+use sim_light::{Illumination, LaserOn, PoseRadiance, RigTruth, SceneDesc, SimQuality, World};
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
+
+use crate::camera::{
+    BoxFuture, Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameMeta, PixelFormat,
+};
+use crate::operator::{Operator, OperatorError};
+use crate::plan::Scale;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimRigError {
+    #[error("simulated world: {0}")]
+    World(#[from] sim_light::Error),
+    #[error("emulated rig: {0}")]
+    Rig(#[from] sim::SimError),
+    #[error("link to the emulated rig: {0}")]
+    Link(#[from] LinkError),
+    #[error("starting the camera thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
+/// How to build the simulated rig.
+#[derive(Debug, Clone)]
+pub struct SimRigConfig {
+    /// Sample preset name or TOML file (sim-light `SceneDesc::load`).
+    pub sample: String,
+    /// Photon budget and image binning follow the capture scale.
+    pub quality: SimQuality,
+    /// Seed of everything random in the world (rig errors, boot ids, MC, noise).
+    pub seed: u64,
+    /// Virtual seconds per wall second.
+    pub speed: f64,
+    /// Faults on the link (tests).
+    pub faults: FaultConfig,
+    /// Radiance cache budget, bytes.
+    pub cache_bytes: usize,
+}
+
+impl SimRigConfig {
+    pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
+        let (quality, speed) = match scale {
+            Scale::Ci => (SimQuality::ci(), 4.0),
+            Scale::Default => (SimQuality::preview(), 4.0),
+            Scale::Paper => (SimQuality::default_scale(), 2.0),
+        };
+        SimRigConfig {
+            sample: sample.to_string(),
+            quality,
+            seed,
+            speed,
+            faults: FaultConfig::none(),
+            cache_bytes: 1 << 30,
+        }
+    }
+}
+
+/// The operator's hands on the simulated rig, and fault injection.
+#[derive(Clone)]
+pub struct SimHandle {
+    rig: RigHandle,
+    world: Arc<RwLock<World>>,
+    sample: SceneDesc,
+}
+
+impl SimHandle {
+    /// The emulated MCU (fault injection: `reset_mcu`, `disconnect`, interlock).
+    pub fn rig(&self) -> &RigHandle {
+        &self.rig
+    }
+    /// Where the laser clamp is now, radians.
+    pub fn laser_mount(&self) -> f64 {
+        self.world
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .laser_mount()
+    }
+    pub fn set_laser_mount(&self, elevation: f64) {
+        self.world
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .set_laser_mount(elevation);
+    }
+    /// Put the sample (`"sample"`) or a target preset on the turntable.
+    pub fn place(&self, what: &str) -> Result<(), sim_light::Error> {
+        let desc = if what == "sample" {
+            self.sample.clone()
+        } else {
+            SceneDesc::preset(what)?
+        };
+        let mut w = self.world.write().unwrap_or_else(|e| e.into_inner());
+        let elevation = w.laser_mount();
+        let mut next = World::new(desc, w.rig().clone(), *w.quality())?;
+        next.set_laser_mount(elevation);
+        *w = next;
+        Ok(())
+    }
+    /// The true rig (for reports of recovered against true calibration).
+    pub fn truth(&self) -> RigTruth {
+        self.world
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .rig()
+            .clone()
+    }
+    /// An operator that acts at once.
+    pub fn operator(&self) -> SimOperator {
+        SimOperator {
+            handle: self.clone(),
+        }
+    }
+}
+
+/// The simulated operator: moves the clamp and swaps targets instantly.
+pub struct SimOperator {
+    handle: SimHandle,
+}
+
+impl Operator for SimOperator {
+    fn move_laser_clamp(&mut self, elevation: f64) -> BoxFuture<'_, Result<(), OperatorError>> {
+        let ok = elevation.is_finite()
+            && (0.0..=std::f64::consts::FRAC_PI_2 + 1e-9).contains(&elevation);
+        if ok {
+            self.handle.set_laser_mount(elevation);
+        }
+        Box::pin(async move {
+            ok.then_some(()).ok_or_else(|| {
+                OperatorError::Failed(format!("no clamp position at {elevation} rad"))
+            })
+        })
+    }
+    fn place_on_turntable(&mut self, what: &str) -> BoxFuture<'_, Result<(), OperatorError>> {
+        let r = self
+            .handle
+            .place(what)
+            .map_err(|e| OperatorError::Failed(e.to_string()));
+        Box::pin(async move { r })
+    }
+}
+
+/// A started simulated rig.
+pub struct SimRig {
+    pub link: Link,
+    pub cameras: Vec<Box<dyn Camera>>,
+    pub handle: SimHandle,
+    stop: Arc<AtomicBool>,
+}
+
+impl SimRig {
+    /// Starts the emulated MCU, the link and the cameras (within a tokio runtime).
+    pub async fn start(sample: &str, scale: Scale, seed: u64) -> Result<SimRig, SimRigError> {
+        Self::start_with(SimRigConfig::new(sample, scale, seed)).await
+    }
+
+    pub async fn start_with(cfg: SimRigConfig) -> Result<SimRig, SimRigError> {
+        let desc = SceneDesc::load(&cfg.sample)?;
+        let world = World::new(desc.clone(), RigTruth::perturbed(cfg.seed), cfg.quality)?;
+        let mut sim_cfg = SimConfig::seeded(cfg.seed);
+        sim_cfg.speed = cfg.speed;
+        sim_cfg.link.faults = cfg.faults;
+        let (stream, rig) = sim::spawn_in_process(&sim_cfg)?;
+        let triggers = rig.subscribe_triggers();
+        let link = Link::open_stream(Box::new(stream), LinkConfig::scaled(cfg.speed)).await?;
+        let world = Arc::new(RwLock::new(world));
+        let (width, height) = world.read().unwrap_or_else(|e| e.into_inner()).image_size();
+        let stop = Arc::new(AtomicBool::new(false));
+        let state = Arc::new(Mutex::new(HubState::default()));
+        let mut cameras: Vec<Box<dyn Camera>> = Vec::new();
+        for (k, _) in hardware::NOMINAL_GEOMETRY.cameras.iter().enumerate() {
+            let (tx, rx) = unbounded_channel();
+            state.lock().unwrap_or_else(|e| e.into_inner()).cams[k] = CamSlot {
+                tx: Some(tx),
+                ..CamSlot::default()
+            };
+            cameras.push(Box::new(SimCamera {
+                index: k as u8,
+                size: (width, height),
+                downscale: cfg.quality.downscale,
+                state: state.clone(),
+                rx,
+                rig: rig.clone(),
+            }));
+        }
+        let hub = Hub {
+            world: world.clone(),
+            state,
+            seed: cfg.seed,
+            cache: VecDeque::new(),
+            cache_bytes: cfg.cache_bytes,
+            stop: stop.clone(),
+        };
+        std::thread::Builder::new()
+            .name("sim-cameras".into())
+            .spawn(move || hub.run(triggers))?;
+        Ok(SimRig {
+            link,
+            cameras,
+            handle: SimHandle {
+                rig,
+                world,
+                sample: desc,
+            },
+            stop,
+        })
+    }
+}
+
+impl Drop for SimRig {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        self.handle.rig.shutdown();
+    }
+}
+
+type FrameMsg = (u64, Result<Frame, CameraError>);
+
+#[derive(Default)]
+struct CamSlot {
+    settings: Option<CameraSettings>,
+    tags: VecDeque<u64>,
+    /// Trigger edges before this virtual time belong to an older arming.
+    armed_after_us: u64,
+    generation: u64,
+    counter: u64,
+    tx: Option<UnboundedSender<FrameMsg>>,
+}
+
+#[derive(Default)]
+struct HubState {
+    cams: [CamSlot; 8],
+}
+
+/// A simulated camera on the arc.
+struct SimCamera {
+    index: u8,
+    size: (u32, u32),
+    downscale: u32,
+    state: Arc<Mutex<HubState>>,
+    rx: UnboundedReceiver<FrameMsg>,
+    rig: RigHandle,
+}
+
+impl SimCamera {
+    fn slot<R>(&self, f: impl FnOnce(&mut CamSlot) -> R) -> R {
+        f(&mut self.state.lock().unwrap_or_else(|e| e.into_inner()).cams[self.index as usize])
+    }
+}
+
+impl Camera for SimCamera {
+    fn info(&self) -> CameraInfo {
+        CameraInfo {
+            index: self.index,
+            vendor: "qhm".into(),
+            model: "simulated".into(),
+            serial: format!("sim-{}", self.index),
+            width: self.size.0 * self.downscale,
+            height: self.size.1 * self.downscale,
+        }
+    }
+
+    fn configure(&mut self, settings: CameraSettings) -> BoxFuture<'_, Result<(), CameraError>> {
+        let camera = self.index;
+        let r = if settings.binning != self.downscale {
+            Err(CameraError::Unsupported {
+                camera,
+                what: format!(
+                    "binning {} (the simulated world renders at binning {})",
+                    settings.binning, self.downscale
+                ),
+            })
+        } else if !(settings.exposure_s.is_finite() && settings.exposure_s > 0.0) {
+            Err(CameraError::Unsupported {
+                camera,
+                what: format!("exposure {} s", settings.exposure_s),
+            })
+        } else if !(0.0..=48.0).contains(&settings.gain_db) {
+            Err(CameraError::Unsupported {
+                camera,
+                what: format!("gain {} dB", settings.gain_db),
+            })
+        } else {
+            self.slot(|s| s.settings = Some(settings));
+            Ok(())
+        };
+        Box::pin(async move { r })
+    }
+
+    fn arm(&mut self, tags: Vec<u64>) -> BoxFuture<'_, Result<(), CameraError>> {
+        let now = self.rig.now_us();
+        let camera = self.index;
+        let r = self.slot(|s| {
+            if s.settings.is_none() {
+                return Err(CameraError::Unsupported {
+                    camera,
+                    what: "arm before configure".into(),
+                });
+            }
+            s.tags = tags.into();
+            s.armed_after_us = now;
+            s.generation += 1;
+            Ok(())
+        });
+        while self.rx.try_recv().is_ok() {}
+        Box::pin(async move { r })
+    }
+
+    fn next_frame(&mut self, timeout: Duration) -> BoxFuture<'_, Result<Frame, CameraError>> {
+        Box::pin(async move {
+            let camera = self.index;
+            let generation = self.slot(|s| s.generation);
+            let deadline = tokio::time::Instant::now() + timeout;
+            loop {
+                match tokio::time::timeout_at(deadline, self.rx.recv()).await {
+                    Err(_) => return Err(CameraError::Timeout { camera, timeout }),
+                    Ok(None) => {
+                        return Err(CameraError::Disconnected {
+                            camera,
+                            why: "the simulated world stopped".into(),
+                        });
+                    }
+                    Ok(Some((g, frame))) if g == generation => return frame,
+                    Ok(Some(_)) => {} // from an older arming
+                }
+            }
+        })
+    }
+
+    fn disarm(&mut self) -> BoxFuture<'_, Result<(), CameraError>> {
+        self.slot(|s| {
+            s.tags.clear();
+            s.generation += 1;
+        });
+        while self.rx.try_recv().is_ok() {}
+        Box::pin(async { Ok(()) })
+    }
+}
+
+/// Renders and exposes on trigger edges.
+struct Hub {
+    world: Arc<RwLock<World>>,
+    state: Arc<Mutex<HubState>>,
+    seed: u64,
+    cache: VecDeque<(u64, Arc<PoseRadiance>, usize)>,
+    cache_bytes: usize,
+    stop: Arc<AtomicBool>,
+}
+
+/// SplitMix64 finaliser: a well-mixed 64-bit hash step.
+fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Sensor noise seed of a frame: from the run seed, its tag and the camera.
+pub fn noise_seed(seed: u64, tag: u64, camera: u8) -> u64 {
+    mix64(mix64(seed ^ 0x6e6f_6973_65) ^ mix64(tag) ^ ((camera as u64) << 56))
+}
+
+/// The pose a trigger edge saw, as sim-light takes it.
+fn illumination(s: &RigState) -> Illumination {
+    Illumination {
+        turntable_rad: s.turntable_rad,
+        light_arc_rad: s.light_arc_rad,
+        // The mirror turns the beam by twice its mechanical angle.
+        galvo_rad: 2.0 * s.galvo_rad,
+        laser: s.laser.map(|(c, p)| LaserOn {
+            channel: c.index(),
+            power: p,
+        }),
+        lamps: s.lamps,
+    }
+}
+
+/// Hash of everything the radiance depends on (angles to 1 urad).
+fn pose_key(world: &World, ev: &TriggerEvent) -> u64 {
+    let q = |a: f64| (a * 1e6).round() as i64 as u64;
+    let s = &ev.state;
+    let mut h = mix64(q(s.turntable_rad));
+    for v in [
+        q(s.light_arc_rad),
+        q(s.galvo_rad),
+        s.laser.map_or(0, |(c, p)| {
+            1 + c.index() as u64 * 10_000 + (p * 1000.0).round() as u64
+        }),
+        s.lamps as u64,
+        ev.mask as u64,
+        q(world.laser_mount()),
+    ] {
+        h = mix64(h ^ v);
+    }
+    for b in world.desc().to_toml_string().bytes() {
+        h = mix64(h ^ b as u64);
+    }
+    h
+}
+
+impl Hub {
+    fn run(mut self, mut triggers: UnboundedReceiver<TriggerEvent>) {
+        use tokio::sync::mpsc::error::TryRecvError;
+        // Poll, so the thread also ends when the SimRig is dropped while
+        // someone still holds a handle on the emulated rig.
+        while !self.stop.load(Ordering::SeqCst) {
+            match triggers.try_recv() {
+                Ok(ev) => self.on_trigger(&ev),
+                Err(TryRecvError::Empty) => std::thread::sleep(Duration::from_millis(1)),
+                Err(TryRecvError::Disconnected) => break,
+            }
+        }
+        // Wake waiting cameras: the world is gone.
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        for c in st.cams.iter_mut() {
+            c.tx = None;
+        }
+    }
+
+    fn on_trigger(&mut self, ev: &TriggerEvent) {
+        struct Job {
+            camera: u8,
+            tag: u64,
+            settings: CameraSettings,
+            generation: u64,
+            counter: u64,
+            tx: UnboundedSender<FrameMsg>,
+        }
+        let mut jobs = Vec::new();
+        {
+            let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            for (k, c) in st.cams.iter_mut().enumerate() {
+                if ev.mask & (1 << k) == 0 || ev.at_us < c.armed_after_us {
+                    continue;
+                }
+                let (Some(settings), Some(tx)) = (c.settings, c.tx.clone()) else {
+                    continue;
+                };
+                let Some(tag) = c.tags.pop_front() else {
+                    continue;
+                };
+                c.counter += 1;
+                jobs.push(Job {
+                    camera: k as u8,
+                    tag,
+                    settings,
+                    generation: c.generation,
+                    counter: c.counter,
+                    tx,
+                });
+            }
+        }
+        if jobs.is_empty() {
+            return;
+        }
+        let world = self.world.read().unwrap_or_else(|e| e.into_inner());
+        let key = pose_key(&world, ev);
+        let radiance = match self.cache.iter().position(|(k, _, _)| *k == key) {
+            Some(i) => {
+                let hit = self.cache.remove(i).expect("index from position");
+                let r = hit.1.clone();
+                self.cache.push_back(hit);
+                Ok(r)
+            }
+            None => world
+                .render_pose(&illumination(&ev.state), ev.mask, mix64(self.seed ^ key))
+                .map(Arc::new),
+        };
+        let radiance = match radiance {
+            Ok(r) => r,
+            Err(e) => {
+                for j in jobs {
+                    let _ = j.tx.send((
+                        j.generation,
+                        Err(CameraError::Driver(format!("simulated world: {e}"))),
+                    ));
+                }
+                return;
+            }
+        };
+        if self.cache.back().is_none_or(|(k, _, _)| *k != key) {
+            let bytes = radiance
+                .images
+                .iter()
+                .flatten()
+                .map(|i| i.data.len() * 12)
+                .sum();
+            self.cache.push_back((key, radiance.clone(), bytes));
+            while self.cache.iter().map(|c| c.2).sum::<usize>() > self.cache_bytes
+                && self.cache.len() > 1
+            {
+                self.cache.pop_front();
+            }
+        }
+        for j in jobs {
+            let Some(img) = radiance.image(j.camera as usize) else {
+                continue;
+            };
+            let gain = 10f64.powf(j.settings.gain_db / 20.0);
+            let f = world.sensor(j.camera as usize).expose(
+                img,
+                j.settings.exposure_s,
+                gain,
+                noise_seed(self.seed, j.tag, j.camera),
+            );
+            let frame = Frame {
+                meta: FrameMeta {
+                    camera: j.camera,
+                    tag: j.tag,
+                    trigger_us: ev.at_us,
+                    exposure_s: j.settings.exposure_s,
+                    gain_db: j.settings.gain_db,
+                    frame_counter: j.counter,
+                },
+                width: f.width,
+                height: f.height,
+                format: PixelFormat::Rgb8,
+                data: f.rgb,
+            };
+            let _ = j.tx.send((j.generation, Ok(frame)));
+        }
+    }
+}
