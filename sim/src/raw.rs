@@ -147,6 +147,9 @@ impl RawHost {
             self.send_raw(seq, command.clone());
             let deadline = self.now_us() + timeout_us;
             while self.now_us() < deadline {
+                if self.port.is_disconnected() {
+                    return Err(RawError::Disconnected);
+                }
                 self.tick();
                 if let Some(i) = self.acks.iter().position(|(s, _)| *s == seq) {
                     let (_, result) = self.acks.swap_remove(i);

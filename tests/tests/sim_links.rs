@@ -271,9 +271,20 @@ fn disconnect_fault_closes_the_line_at_its_time() {
     };
     let mut h = RawHost::new(SimPort::new(RigConfig::seeded(33), link).unwrap());
     assert!(matches!(h.identify(), Ok(Ok(Reply::Identity(_)))));
-    h.run_for(60_000);
+    h.run_for(40_000);
+    assert!(!h.port.is_disconnected());
+    // A call in flight when the line closes learns it at once.
+    let t = h.now_us();
+    assert_eq!(
+        h.call_with(Command::Status, 1_000_000, 3),
+        Err(RawError::Disconnected)
+    );
     assert!(h.port.is_disconnected());
-    assert_eq!(h.call(Command::Status), Err(RawError::Disconnected));
+    assert!(
+        h.now_us() - t < 20_000,
+        "noticed at the disconnect, not after the timeouts"
+    );
+    assert!(h.port.host_read().is_empty());
 }
 
 #[test]
