@@ -625,3 +625,11 @@ fn reset_is_requested_once_the_ack_is_taken() {
     );
     assert_eq!(rig.lamps, 0);
 }
+
+#[test]
+fn controller_memory_is_small_and_static() {
+    let size = core::mem::size_of::<Controller>();
+    // The STM32 holds it in a static task future; keep it well under 8 KB.
+    assert!(size < 8 * 1024, "Controller is {size} bytes");
+    std::println!("size_of::<Controller>() = {size}");
+}

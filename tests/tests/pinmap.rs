@@ -123,3 +123,26 @@ fn missing_and_unknown_claims_are_caught() {
     let unknown = BOARD_RS.replace("// Signal::Lamp(7)", "// Signal::Lamp(8)");
     assert!(check(&unknown).iter().any(|p| p.contains("Lamp(8)")));
 }
+
+#[test]
+fn wiring_table_matches_the_pin_map() {
+    let wiring = include_str!("../../hardware/WIRING.md");
+    for a in PIN_MAP {
+        let row = format!("| {:?} | {} | {} |", a.signal, a.pin, a.header);
+        assert!(
+            wiring.lines().any(|l| l.starts_with(&row)),
+            "hardware/WIRING.md lacks the row `{row} ...`"
+        );
+    }
+    let rows = wiring
+        .lines()
+        .filter(|l| {
+            let cells: Vec<_> = l.split('|').map(str::trim).collect();
+            cells.len() > 3
+                && cells[2].starts_with('P')
+                && cells[2][1..2].chars().all(|c| c.is_ascii_uppercase())
+                && cells[2].len() <= 4
+        })
+        .count();
+    assert_eq!(rows, PIN_MAP.len(), "WIRING.md has pin rows the map lacks");
+}
