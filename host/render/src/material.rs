@@ -1,7 +1,11 @@
 //! What the renderer needs from a material: the four parts of paper eq. 4.
 //! [`qhm_model::MaterialModel`] implements it; tests and quick looks can
 //! use [`Homogeneous`] (a plain dipole material: f = Fresnel transmittance
-//! ratio, f_v = 1, no LRF).
+//! ratio, f_v = 1, no LRF: the same as `MaterialModel::homogeneous`).
+//!
+//! Radiance convention (shared with qhm-model, docs/model-format.md):
+//! L_o = ∫ R(x, w_i, w_o) E_n(w_i) dw_i + f_v(x, w_o) / pi · Σ_i R_d f E_i A_i,
+//! with E_n the irradiance normal to the light.
 //!
 //! Directions are in the local shading frame: z = surface normal (outside),
 //! x = the texture's +u direction on the surface.
@@ -24,6 +28,11 @@ pub trait Material: Sync {
     fn texture_size(&self) -> (u32, u32);
     /// Texel pitch on the sample, mm.
     fn texel_mm(&self) -> f32;
+    /// False when the LRF is identically zero, so the renderer can skip
+    /// integrating it.
+    fn has_lrf(&self) -> bool {
+        true
+    }
 }
 
 /// A homogeneous material: plain dipole, smooth Fresnel entrance, no texture.
@@ -51,6 +60,33 @@ impl Material for Homogeneous {
     }
     fn texel_mm(&self) -> f32 {
         1.0
+    }
+    fn has_lrf(&self) -> bool {
+        false
+    }
+}
+
+impl Material for qhm_model::MaterialModel {
+    fn dipole(&self) -> DipoleParams {
+        self.dipole
+    }
+    fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
+        qhm_model::MaterialModel::entrance(self, wi)
+    }
+    fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
+        qhm_model::MaterialModel::exiting(self, uv, wo)
+    }
+    fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+        qhm_model::MaterialModel::lrf(self, uv, wi, wo)
+    }
+    fn texture_size(&self) -> (u32, u32) {
+        qhm_model::MaterialModel::texture_size(self)
+    }
+    fn texel_mm(&self) -> f32 {
+        qhm_model::MaterialModel::texel_mm(self)
+    }
+    fn has_lrf(&self) -> bool {
+        !self.lrf.samples.is_empty()
     }
 }
 

@@ -11,8 +11,6 @@
 //! treated as two-sided: light counts on whichever side it arrives, so
 //! meshes with inconsistent winding still work.
 
-use std::collections::HashMap;
-
 use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -86,9 +84,23 @@ pub fn poisson_disk(mesh: &Mesh, target: usize, seed: u64) -> SurfaceSamples {
         cdf.push(acc / total as f64);
     }
     let radius = (0.7 * total / target as f32).sqrt();
-    let inv_cell = 1.0 / radius;
-    let cell = |p: Vec3| (p * inv_cell).floor().as_ivec3().to_array();
-    let mut grid: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+    // A dense grid of cells at least `radius` wide (linked lists of points),
+    // coarser if the box would need more than ~8M cells.
+    let (lo, hi) = mesh.bounds();
+    let ext = (hi - lo).max(Vec3::splat(radius));
+    let cell = radius.max((ext.x * ext.y * ext.z / 8.0e6).cbrt());
+    let dims = (ext / cell).floor().as_uvec3() + 1;
+    let (nx, ny, nz) = (dims.x as usize, dims.y as usize, dims.z as usize);
+    let mut heads = vec![u32::MAX; nx * ny * nz];
+    let mut next: Vec<u32> = Vec::new();
+    let cell_of = |p: Vec3| {
+        let c = ((p - lo) / cell).floor().max(Vec3::ZERO).as_uvec3();
+        [
+            (c.x as usize).min(nx - 1),
+            (c.y as usize).min(ny - 1),
+            (c.z as usize).min(nz - 1),
+        ]
+    };
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let mut out = SurfaceSamples {
         radius,
@@ -105,25 +117,26 @@ pub fn poisson_disk(mesh: &Mesh, target: usize, seed: u64) -> SurfaceSamples {
         }
         let [a, b, c] = mesh.corners(t);
         let p = a + (b - a) * b1 + (c - a) * b2;
-        let k = cell(p);
+        let k = cell_of(p);
         let mut free = true;
-        'scan: for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(list) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        if list
-                            .iter()
-                            .any(|&j| out.pos[j as usize].distance_squared(p) < r2)
-                        {
+        'scan: for x in k[0].saturating_sub(1)..=(k[0] + 1).min(nx - 1) {
+            for y in k[1].saturating_sub(1)..=(k[1] + 1).min(ny - 1) {
+                for z in k[2].saturating_sub(1)..=(k[2] + 1).min(nz - 1) {
+                    let mut j = heads[(z * ny + y) * nx + x];
+                    while j != u32::MAX {
+                        if out.pos[j as usize].distance_squared(p) < r2 {
                             free = false;
                             break 'scan;
                         }
+                        j = next[j as usize];
                     }
                 }
             }
         }
         if free {
-            grid.entry(k).or_default().push(out.pos.len() as u32);
+            let h = &mut heads[(k[2] * ny + k[1]) * nx + k[0]];
+            next.push(*h);
+            *h = out.pos.len() as u32;
             out.pos.push(p);
             out.normal.push(mesh.face_normal(t));
             out.tri.push(t as u32);
@@ -136,6 +149,11 @@ pub fn poisson_disk(mesh: &Mesh, target: usize, seed: u64) -> SurfaceSamples {
 }
 
 /// Fills `samples.irradiance` from the scene's lights (parallel).
+///
+/// The environment is turned into one shared set of `env_samples`
+/// importance-sampled directions (stratified), used for every point: the
+/// estimate is then smooth over the surface instead of mottled by
+/// independent per-point noise, which the dipole would smear into blotches.
 pub fn compute_irradiance<M: Material>(
     scene: &Scene,
     samples: &mut SurfaceSamples,
@@ -143,6 +161,7 @@ pub fn compute_irradiance<M: Material>(
     env_samples: usize,
     seed: u64,
 ) {
+    let env_set = env_directions(scene, env_samples, seed);
     let SurfaceSamples {
         pos,
         normal,
@@ -152,27 +171,45 @@ pub fn compute_irradiance<M: Material>(
     } = samples;
     irradiance.par_iter_mut().enumerate().for_each(|(i, e)| {
         let tangent = scene.mesh.tangents[tri[i] as usize];
-        *e = irradiance_at(
-            scene,
-            pos[i],
-            normal[i],
-            tangent,
-            &entrance,
-            env_samples,
-            seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-        );
+        *e = irradiance_at(scene, pos[i], normal[i], tangent, &entrance, &env_set);
     });
 }
 
-/// Irradiance at one surface point (two-sided), attenuated by the entrance.
+/// A stratified, importance-sampled set of environment directions, each
+/// with its weight L(w) / (pdf(w) N): the env map as N directional lights.
+pub fn env_directions(scene: &Scene, n: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
+    let Some(env) = &scene.env else {
+        return Vec::new();
+    };
+    if n == 0 {
+        return Vec::new();
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0xe4f);
+    let m = (n as f32).sqrt().ceil() as usize;
+    let n_tot = (m * m) as f32;
+    let mut out = Vec::with_capacity(m * m);
+    for a in 0..m {
+        for b in 0..m {
+            let u0 = (a as f32 + rng.random::<f32>()) / m as f32;
+            let u1 = (b as f32 + rng.random::<f32>()) / m as f32;
+            let (wi, l, pdf) = env.sample(u0, u1);
+            if pdf > 0.0 {
+                out.push((wi, l / (pdf * n_tot)));
+            }
+        }
+    }
+    out
+}
+
+/// Irradiance at one surface point (two-sided), attenuated by the entrance;
+/// `env_set` from [`env_directions`].
 pub fn irradiance_at<M: Material>(
     scene: &Scene,
     p: Vec3,
     n: Vec3,
     tangent: Vec3,
     entrance: &Entrance<'_, M>,
-    env_samples: usize,
-    seed: u64,
+    env_set: &[(Vec3, Vec3)],
 ) -> Vec3 {
     let mut e = Vec3::ZERO;
     let mut add = |wi: Vec3, dist: f32, radiance_term: Vec3| {
@@ -195,20 +232,8 @@ pub fn irradiance_at<M: Material>(
         let s = light.sample(p);
         add(s.wi, s.dist, s.e_perp);
     }
-    if let (Some(env), true) = (&scene.env, env_samples > 0) {
-        let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        let m = (env_samples as f32).sqrt().ceil() as usize;
-        let n_tot = (m * m) as f32;
-        for a in 0..m {
-            for b in 0..m {
-                let u0 = (a as f32 + rng.random::<f32>()) / m as f32;
-                let u1 = (b as f32 + rng.random::<f32>()) / m as f32;
-                let (wi, l, pdf) = env.sample(u0, u1);
-                if pdf > 0.0 {
-                    add(wi, f32::INFINITY, l / (pdf * n_tot));
-                }
-            }
-        }
+    for &(wi, w) in env_set {
+        add(wi, f32::INFINITY, w);
     }
     e
 }

@@ -4,14 +4,14 @@
 //!   L(x_o, w_o) = max(0, L_local + L_global), per channel, where
 //!   L_local  = ∫ R(x_o, w_i, w_o) L(w_i) dw_i
 //!            = Σ_lights R(x_o, w_l, w_o) V E_l + (1/N) Σ_k R L_env(w_k) V / pdf(w_k)
-//!   L_global = f_v(x_o, w_o) · Σ_i R_d(|x_o - x_i|) E_i A_i          (mode full)
+//!   L_global = f_v(x_o, w_o) / pi · Σ_i R_d(|x_o - x_i|) E_i A_i     (mode full)
 //!
 //! with E_i the f-attenuated irradiance of the surface samples (see
 //! [`crate::points`]) and the sum evaluated by the octree
-//! ([`crate::octree`]). Normalisation: eq. 4 is used as written, so f_v
-//! carries the outgoing Fresnel factor and the 1/pi of a diffuse exitance,
-//! as it does when fitted by paper eq. 3 (the ratio of measured radiance to
-//! the dipole sum). The plain-dipole modes use Jensen et al. 2001 instead:
+//! ([`crate::octree`]). Normalisation, as qhm-model defines its fit
+//! (docs/model-format.md): Σ R_d E A is a diffuse exitance, 1/pi turns it
+//! into radiance, and f_v (1 for a homogeneous material) carries the view
+//! dependence. The plain-dipole modes use Jensen et al. 2001 instead:
 //! L_global = (1 - F_r(eta, w_o)) / pi · Σ R_d E_i A_i with E_i attenuated
 //! by 1 - F_r(eta, w_i).
 //!
@@ -115,7 +115,7 @@ impl Default for RenderSettings {
             spp: 4,
             mode: Mode::Full,
             surface_samples: 30_000,
-            epsilon: 0.05,
+            epsilon: 0.1,
             env_samples: 64,
             light_samples: 8,
             local_radius_mm: 0.0,
@@ -224,7 +224,11 @@ pub fn prepare<M: Material>(
     stats.secs_irradiance = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let tree = DipoleTree::new(&samples);
-    let rd = RdTable::new(&dipole);
+    // Every sample stands for an equal share A of the area; the kernel is
+    // averaged over a disk of twice that radius, which hides the sample
+    // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
+    let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
+    let rd = RdTable::new(&dipole, rho);
     stats.secs_tree = t.elapsed().as_secs_f64();
     stats.surface_samples = samples.pos.len();
     stats.octree_nodes = tree.node_count();
@@ -279,6 +283,10 @@ pub fn render_scene_stats<M: Material>(
 
 const TILE: u32 = 16;
 
+/// Radius of the dipole kernel's averaging disk, in units of the radius
+/// of one sample's area share.
+pub const KERNEL_SPREAD: f32 = 2.0;
+
 fn render_pixels<M: Material>(
     scene: &Scene,
     material: &M,
@@ -314,6 +322,7 @@ fn render_pixels<M: Material>(
                             ^ ((y as u64) << 32 | x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
                     );
                     let mut sum = Vec3::ZERO;
+                    let mut cache = None;
                     for a in 0..m {
                         for b in 0..m {
                             let px = x as f32 + (a as f32 + rng.random::<f32>()) / m as f32;
@@ -326,6 +335,7 @@ fn render_pixels<M: Material>(
                                 prep,
                                 &ray,
                                 &mut rng,
+                                &mut cache,
                                 &mut qs,
                                 &mut queries,
                             );
@@ -362,6 +372,7 @@ fn radiance<M: Material>(
     prep: &Prepared,
     ray: &Ray,
     rng: &mut Pcg64Mcg,
+    cache: &mut Option<(Vec3, Vec3)>,
     qs: &mut QueryStats,
     queries: &mut u64,
 ) -> Vec3 {
@@ -391,7 +402,7 @@ fn radiance<M: Material>(
     let mut l = Vec3::ZERO;
 
     // Local term: the LRF over the light arriving at x_o.
-    if settings.mode.has_lrf() {
+    if settings.mode.has_lrf() && material.has_lrf() {
         let lrf_light = |wi: Vec3, dist: f32, e: Vec3| {
             if ng.dot(wi) <= 0.0 {
                 return Vec3::ZERO;
@@ -423,15 +434,29 @@ fn radiance<M: Material>(
 
     // Global term: the hierarchical dipole sum, modulated on exit.
     if settings.mode.has_global() && !prep.tree.is_empty() {
-        let m = prep
-            .tree
-            .query_stats(p, &prep.rd, settings.epsilon, settings.local_radius_mm, qs);
-        *queries += 1;
+        // Within a pixel the dipole sum is smooth: samples that land within
+        // a surface-sample radius of the previous query reuse its value.
+        let r2 = prep.samples.radius * prep.samples.radius;
+        let m = match *cache {
+            Some((q, m)) if q.distance_squared(p) < r2 => m,
+            _ => {
+                let m = prep.tree.query_stats(
+                    p,
+                    &prep.rd,
+                    settings.epsilon,
+                    settings.local_radius_mm,
+                    qs,
+                );
+                *queries += 1;
+                *cache = Some((p, m));
+                m
+            }
+        };
         let exit = if settings.mode.plain_dipole() {
             let ft = 1.0 - qhm_model::dipole::fresnel_dielectric(wo_l.z as f64, prep.eta);
             Vec3::splat(ft as f32 / PI)
         } else {
-            Vec3::from(material.exiting(uv, wo_l.to_array()))
+            Vec3::from(material.exiting(uv, wo_l.to_array())) / PI
         };
         l += exit * m;
     }
