@@ -228,7 +228,8 @@ impl AxisState {
         }
         let forward = p.forward;
         step(forward);
-        self.position += if forward { 1 } else { -1 };
+        // Wrapping: an unhomed axis may drift through many failed homings.
+        self.position = self.position.wrapping_add(if forward { 1 } else { -1 });
         let outcome = match self.mode {
             Mode::Moving(p) | Mode::Stopping(p) if p.done() => {
                 self.mode = Mode::Idle;

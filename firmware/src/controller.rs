@@ -18,7 +18,7 @@
 use crate::axis::{AxisOutcome, AxisState};
 use crate::galvo::{self, DAC_MAX, GALVO_MAX_URAD, SweepAction, SweepRun};
 use crate::io::{Inputs, Io};
-use crate::tx::TxQueue;
+use crate::tx::{TX_CAPACITY, TxQueue};
 use crate::{BOARD_NAME, FIRMWARE_VERSION};
 use hardware::{LIGHT_ARC, TURNTABLE};
 use protocol::seq::{Admission, CommandSequencer, EventQueue, seq_after};
@@ -38,6 +38,9 @@ pub const MAX_PULSE_US: u32 = 1_000_000;
 pub const INPUT_POLL_US: u64 = 1_000;
 /// Unacknowledged events kept for retransmission.
 pub const EVENT_QUEUE: usize = 32;
+/// Oldest unacknowledged events re-sent per period (about 3 KB/s at most,
+/// a quarter of a 115200 baud link).
+pub const RESEND_BURST: usize = 8;
 /// Number of lamp and camera trigger lines.
 pub const LINES: usize = 8;
 
@@ -486,7 +489,7 @@ impl Controller {
     fn fire_triggers(&mut self, now: u64, mask: u8, pulse_us: u32) {
         for (i, off) in self.trigger_off_us.iter_mut().enumerate() {
             if mask & (1 << i) != 0 {
-                *off = (*off).max(now + pulse_us as u64);
+                *off = (*off).max(now.saturating_add(pulse_us as u64));
             }
         }
         self.events.push(
@@ -784,16 +787,19 @@ impl Controller {
             }
         };
         // Re-send the old ones first, so a new one is not sent twice in one go.
+        // At most RESEND_BURST per period, and only while the link keeps up:
+        // a host that never acknowledges must not starve the replies.
         if now >= self.resend_at {
             let mut any = false;
-            for &(eseq, at_us, event) in self.events.pending() {
-                if !seq_after(eseq, self.last_sent_eseq) {
+            let busy = self.tx.len() > TX_CAPACITY / 2;
+            for &(eseq, at_us, event) in self.events.pending().take(RESEND_BURST) {
+                if !busy && !seq_after(eseq, self.last_sent_eseq) {
                     send(&mut self.tx, eseq, at_us, event);
-                    any = true;
                 }
+                any = true;
             }
             if any {
-                self.resend_at = now + EVENT_RESEND_US;
+                self.resend_at = now.saturating_add(EVENT_RESEND_US);
             }
         }
         let mut any_new = false;
@@ -805,13 +811,13 @@ impl Controller {
             }
         }
         if any_new && now >= self.resend_at {
-            self.resend_at = now + EVENT_RESEND_US;
+            self.resend_at = now.saturating_add(EVENT_RESEND_US);
         }
     }
 
     fn next_deadline(&self) -> u64 {
         let now = self.now_us;
-        let mut t = now + INPUT_POLL_US;
+        let mut t = now.saturating_add(INPUT_POLL_US);
         for a in &self.axes {
             if let Some(d) = a.next_due() {
                 t = t.min(d);
@@ -831,7 +837,7 @@ impl Controller {
         if let Some(hb) = self.last_heartbeat_us
             && self.laser_emitting()
         {
-            t = t.min(hb + HEARTBEAT_TIMEOUT_US + 1);
+            t = t.min(hb.saturating_add(HEARTBEAT_TIMEOUT_US + 1));
         }
         t.max(now)
     }

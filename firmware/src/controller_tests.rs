@@ -633,3 +633,37 @@ fn controller_memory_is_small_and_static() {
     assert!(size < 8 * 1024, "Controller is {size} bytes");
     std::println!("size_of::<Controller>() = {size}");
 }
+
+#[test]
+fn unacknowledged_events_are_resent_in_bounded_bursts() {
+    let (mut c, mut rig, mut host) = setup();
+    host.send(&mut c, &mut rig, 0, Command::AckEvents { upto: 1 })
+        .unwrap();
+    for i in 0..20 {
+        host.send(
+            &mut c,
+            &mut rig,
+            10 + i,
+            Command::Trigger {
+                mask: 1,
+                pulse_us: 1,
+            },
+        )
+        .unwrap();
+    }
+    host.events.clear();
+    // one resend period later: only the oldest RESEND_BURST go out again
+    run_until(&mut c, &mut rig, 100, 60 * MS);
+    host.drain(&mut c);
+    let resent: Vec<u16> = host.events.iter().map(|e| e.0).collect();
+    assert_eq!(resent.len(), crate::controller::RESEND_BURST, "{resent:?}");
+    assert_eq!(resent[0], 2);
+    // acknowledging moves the window on
+    host.send(&mut c, &mut rig, 60 * MS, Command::AckEvents { upto: 15 })
+        .unwrap();
+    host.events.clear();
+    run_until(&mut c, &mut rig, 60 * MS, 120 * MS);
+    host.drain(&mut c);
+    let resent: Vec<u16> = host.events.iter().map(|e| e.0).collect();
+    assert_eq!(resent, [16, 17, 18, 19, 20, 21]);
+}

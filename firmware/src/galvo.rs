@@ -103,7 +103,7 @@ impl SweepRun {
             sweep,
             step: 0,
             phase: SweepPhase::Settle {
-                until: now_us + GALVO_SETTLE_US,
+                until: now_us.saturating_add(GALVO_SETTLE_US),
             },
         }
     }
@@ -138,9 +138,9 @@ impl SweepRun {
                     s.pulse_us as u64
                 };
                 self.phase = SweepPhase::Dwell {
-                    trigger_at: until + (dwell - pulse) / 2,
+                    trigger_at: until.saturating_add((dwell - pulse) / 2),
                     fired: s.trigger_mask == 0,
-                    end: until + dwell,
+                    end: until.saturating_add(dwell),
                 };
                 self.advance(now_us)
             }
@@ -171,7 +171,7 @@ impl SweepRun {
                 } else {
                     self.step = done + 1;
                     self.phase = SweepPhase::Settle {
-                        until: end + GALVO_SETTLE_US,
+                        until: end.saturating_add(GALVO_SETTLE_US),
                     };
                 }
                 Some(SweepAction::StepDone {

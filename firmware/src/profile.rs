@@ -82,7 +82,7 @@ impl Profile {
                 self.v_max
             };
             let interval_us = (1.0e6 / self.v) as u64;
-            self.next_us += interval_us.max(1);
+            self.next_us = self.next_us.saturating_add(interval_us.max(1));
         }
         true
     }

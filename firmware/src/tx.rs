@@ -79,6 +79,11 @@ impl TxQueue {
         self.overflows
     }
 
+    /// Bytes waiting.
+    pub fn len(&self) -> usize {
+        self.buf.len()
+    }
+
     pub fn is_empty(&self) -> bool {
         self.buf.is_empty()
     }

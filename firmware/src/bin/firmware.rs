@@ -20,8 +20,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_io_async::{Read, Write};
-use firmware::Controller;
 use firmware::board::{self, RigIo};
+use firmware::{Controller, Io};
 use {defmt_rtt as _, panic_probe as _};
 
 /// Bytes from the host, and bytes to the host.
@@ -64,6 +64,14 @@ async fn control_loop(
     boot_id: u32,
     watchdog_reset: bool,
 ) {
+    // Let the safety debouncer see SETTLE_US of stable reads first, so a
+    // closed interlock and a released e-stop are not taken for unsafe at boot.
+    let settle = Instant::now() + Duration::from_micros(firmware::debounce::SETTLE_US + 1000);
+    while Instant::now() < settle {
+        rig.inputs();
+        watchdog.pet();
+        Timer::after(Duration::from_micros(500)).await;
+    }
     let mut controller = Controller::new(boot_id, watchdog_reset);
     let mut rx = [0u8; 64];
     let mut out = [0u8; 256];
