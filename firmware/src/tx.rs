@@ -48,15 +48,16 @@ impl TxQueue {
     /// first one fits, as many of its bytes as `out` holds.
     pub fn take(&mut self, out: &mut [u8]) -> usize {
         let avail = out.len().min(self.buf.len());
-        let end = self
-            .buf
-            .iter()
-            .take(avail)
-            .enumerate()
-            .filter(|&(_, &b)| b == 0)
-            .map(|(i, _)| i + 1)
-            .last()
-            .unwrap_or(avail);
+        // end of the last complete frame within `avail`, else a partial frame
+        let mut end = 0;
+        for (i, &b) in self.buf.iter().take(avail).enumerate() {
+            if b == 0 {
+                end = i + 1;
+            }
+        }
+        if end == 0 {
+            end = avail;
+        }
         for slot in out.iter_mut().take(end) {
             // cannot fail: end <= len
             *slot = self.buf.pop_front().unwrap_or(0);
