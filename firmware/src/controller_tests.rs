@@ -667,3 +667,77 @@ fn unacknowledged_events_are_resent_in_bounded_bursts() {
     let resent: Vec<u16> = host.events.iter().map(|e| e.0).collect();
     assert_eq!(resent, [16, 17, 18, 19, 20, 21]);
 }
+
+#[test]
+fn speed_and_acceleration_are_clamped_to_the_mechanics() {
+    let duration = |speed_urad_s, accel_urad_s2| {
+        let (mut c, mut rig, mut host) = setup();
+        host.send(
+            &mut c,
+            &mut rig,
+            0,
+            Command::Move {
+                axis: Axis::Turntable,
+                target: MoveTarget::Relative(3_141_593),
+                speed_urad_s,
+                accel_urad_s2,
+            },
+        )
+        .unwrap();
+        let mut t = 0;
+        while c.status(t).axes[0].moving {
+            run_hb(&mut c, &mut rig, &mut host, t, t + 10 * MS);
+            t += 10 * MS;
+        }
+        assert_eq!(rig.pos[0], 3000 + 8000);
+        t
+    };
+    let at_limit = duration(0, 0);
+    // half a turn at 60 deg/s, 120 deg/s^2: 0.5 s ramps + 2.5 s cruise = 3.5 s
+    assert!((3_450 * MS..=3_560 * MS).contains(&at_limit), "{at_limit}");
+    assert_eq!(duration(u32::MAX, u32::MAX), at_limit);
+    // slower on request: 30 deg/s
+    let slow = duration(523_599, 0);
+    assert!(slow > 6_000 * MS, "{slow}");
+}
+
+#[test]
+fn identify_restarts_the_sequence() {
+    let (mut c, mut rig, mut host) = setup();
+    host.send(&mut c, &mut rig, 1, Command::Lamps { mask: 1 })
+        .unwrap();
+    host.seq = 9000;
+    let r = host.send_seq(&mut c, &mut rig, 2, 9000, Command::Identify);
+    assert!(matches!(r, Ok(Reply::Identity(_))));
+    assert_eq!(
+        host.send_seq(&mut c, &mut rig, 3, 9001, Command::Lamps { mask: 2 }),
+        Ok(Reply::Ok)
+    );
+    assert_eq!(rig.lamps, 2);
+    assert_eq!(c.status(3).last_seq, 9001);
+}
+
+#[test]
+fn estop_command_aborts_a_sweep_and_drops_triggers() {
+    let (mut c, mut rig, mut host) = setup();
+    let sweep = Sweep {
+        start_urad: 0,
+        end_urad: 0,
+        steps: 10,
+        dwell_us: 10_000,
+        trigger_mask: 0xff,
+        pulse_us: 9_000,
+    };
+    host.send(&mut c, &mut rig, 0, Command::GalvoSweep(sweep))
+        .unwrap();
+    run_until(&mut c, &mut rig, 0, 5 * MS);
+    assert_eq!(rig.triggers, 0xff);
+    host.send(&mut c, &mut rig, 5 * MS, Command::EStop).unwrap();
+    assert_eq!(rig.triggers, 0);
+    host.drain(&mut c);
+    let ev = host.distinct_events();
+    assert!(ev.contains(&Event::SweepDone { completed: false }));
+    assert!(ev.contains(&Event::Fault {
+        cause: FaultCause::EStop
+    }));
+}
