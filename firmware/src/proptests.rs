@@ -172,6 +172,8 @@ impl World {
                     axis,
                     st.position_steps
                 );
+                // The virtual switch edge is at 0 = home: belief equals physics.
+                prop_assert_eq!(rig.pos[axis.index()], st.position_steps as i64);
             }
         }
         prop_assert_eq!(rig.steps_while_disabled, 0);
