@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 TARGET=thumbv7em-none-eabihf
-PKGS=(rustc-web cargo-web rust-web-src lld-22)
+PKGS=(rustc-web cargo-web rust-web-src lld-22 llvm-22)
 
 missing=()
 for p in "${PKGS[@]}"; do
