@@ -86,7 +86,7 @@ fn main() {
     while c.status(now).axes[0].moving && c.fault().is_none() {
         now = c.poll(now, &mut rig).max(now + 1);
         polls += 1;
-        if polls % 200 == 0 {
+        if polls.is_multiple_of(200) {
             let seq = 2 + (polls / 200) as u16;
             c.receive(
                 now,
