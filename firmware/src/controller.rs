@@ -292,9 +292,12 @@ impl Controller {
         match self.sequencer.admit(&frame) {
             Admission::Retransmission => {
                 if self.cached_reply.is_empty() {
-                    // Identified by a retransmitted Identify before any reply: answer afresh.
-                    let result = self.execute(frame.command);
-                    self.reply(seq, result, false);
+                    // Unreachable in practice (every executed command caches its
+                    // reply); never execute twice, only an Identify is answered.
+                    if matches!(frame.command, Command::Identify) {
+                        let result = self.execute(frame.command);
+                        self.reply(seq, result, true);
+                    }
                 } else {
                     let cached = self.cached_reply.clone();
                     self.tx.push_frame(&cached);
