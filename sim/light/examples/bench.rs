@@ -9,14 +9,15 @@ fn main() -> Result<(), sim_light::Error> {
     let r = sim_light::bench::run(photons, pose)?;
     for row in &r.rows {
         println!(
-            "{:28} {} thr: {:8.0} paths/s {:6.1} M events/s ({:5.1} M/s/core), {:6.1} events/path, {:5.1} M null/s",
+            "{:28} {} thr: {:8.0} paths/s, {:6.1} M events/s wall ({:5.1} M/s/thread), {:6.1} events/path, {:5.1} M null/s, {:6.1} M events per CPU s",
             row.medium,
             row.threads,
             row.paths_per_s,
             row.events_per_s / 1e6,
             row.events_per_s_per_core / 1e6,
             row.mean_events_per_path,
-            row.null_events_per_s / 1e6
+            row.null_events_per_s / 1e6,
+            row.events_per_cpu_s.unwrap_or(0.0) / 1e6
         );
     }
     println!(

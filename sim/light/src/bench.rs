@@ -24,6 +24,10 @@ pub struct BenchRow {
     /// Real collisions per second (all threads).
     pub events_per_s: f64,
     pub events_per_s_per_core: f64,
+    /// CPU seconds used (all threads), when /proc is there.
+    pub cpu_seconds: Option<f64>,
+    /// Real collisions per CPU second: the per-core rate on a loaded machine.
+    pub events_per_cpu_s: Option<f64>,
     pub null_events_per_s: f64,
     pub mean_events_per_path: f64,
 }
@@ -56,6 +60,18 @@ fn pool(threads: usize) -> rayon::ThreadPool {
         .expect("thread pool")
 }
 
+/// CPU seconds this process has used (user + system), from /proc; the
+/// machine is shared, so per-core rates divide by CPU time, not wall time.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // fields 14 and 15 of stat (utime, stime) are 11 and 12 after the name; 100 Hz ticks
+    let ut: f64 = f.get(11)?.parse().ok()?;
+    let st: f64 = f.get(12)?.parse().ok()?;
+    Some((ut + st) / 100.0)
+}
+
 /// Run the benchmark; `photons` per measurement (e.g. 200_000).
 pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
     let mut rows = Vec::new();
@@ -73,9 +89,14 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
             let p = pool(threads);
             // warm up caches and the pool
             p.install(|| world.trace(&pencil, ch, photons / 10, 99, None));
+            let c0 = process_cpu_seconds();
             let t0 = Instant::now();
             let t = p.install(|| world.trace(&pencil, ch, photons, 1, None));
             let s = t0.elapsed().as_secs_f64();
+            let cpu = c0
+                .zip(process_cpu_seconds())
+                .map(|(a, b)| b - a)
+                .filter(|c| *c > 0.0);
             rows.push(BenchRow {
                 medium: label.to_string(),
                 threads,
@@ -84,6 +105,8 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
                 paths_per_s: photons as f64 / s,
                 events_per_s: t.events as f64 / s,
                 events_per_s_per_core: t.events as f64 / s / threads as f64,
+                cpu_seconds: cpu,
+                events_per_cpu_s: cpu.map(|c| t.events as f64 / c),
                 null_events_per_s: t.null_events as f64 / s,
                 mean_events_per_path: t.events as f64 / photons as f64,
             });

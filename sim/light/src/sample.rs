@@ -306,7 +306,8 @@ pub enum TargetDesc {
         #[serde(default = "default_target_size")]
         size_mm: f64,
     },
-    /// Two flat steps: x < 0 at `low_mm`, x >= 0 at `high_mm` (for the laser plane angle).
+    /// Two flat steps: y < 0 at `low_mm`, y >= 0 at `high_mm` (for the laser
+    /// plane angle; a stripe along y, as at light-arc angle 0, crosses the step).
     TwoHeight {
         low_mm: f64,
         high_mm: f64,

@@ -19,9 +19,16 @@ pub struct HeightField {
     pub h_max: f32,
     /// Height of a flat field (targets: the two-height plane uses `steps`).
     pub flat_height: f32,
-    /// Two-height target: x < 0 at steps.0, x >= 0 at steps.1.
+    /// Two-height target: y < 0 at steps.0, y >= 0 at steps.1.
     pub steps: Option<(f32, f32)>,
+    /// Minimum height over tiles of TILE x TILE cells (row-major), so
+    /// segments well below the local surface skip the ray march.
+    pub tile_min: Vec<f32>,
+    pub tiles: [usize; 2],
 }
+
+/// Cells per side of a `tile_min` tile.
+const TILE: usize = 8;
 
 impl HeightField {
     pub fn flat(half: [f32; 2], height: f32) -> Self {
@@ -34,6 +41,8 @@ impl HeightField {
             h_max: height,
             flat_height: height,
             steps: None,
+            tile_min: vec![],
+            tiles: [0, 0],
         }
     }
 
@@ -114,6 +123,21 @@ impl HeightField {
         }
         let h_min = h.iter().copied().fold(f32::INFINITY, f32::min);
         let h_max = h.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        // tile minima over the nodes a bilinear lookup in the tile can touch
+        let tiles = [(n[0] - 1).div_ceil(TILE), (n[1] - 1).div_ceil(TILE)];
+        let mut tile_min = vec![f32::INFINITY; tiles[0] * tiles[1]];
+        for j in 0..n[1] {
+            for i in 0..n[0] {
+                let v = h[j * n[0] + i];
+                // node (i, j) borders tiles (i-1)/T..=i/T in each direction
+                for tj in (j.saturating_sub(1) / TILE)..=(j / TILE).min(tiles[1] - 1) {
+                    for ti in (i.saturating_sub(1) / TILE)..=(i / TILE).min(tiles[0] - 1) {
+                        let m = &mut tile_min[tj * tiles[0] + ti];
+                        *m = m.min(v);
+                    }
+                }
+            }
+        }
         HeightField {
             half,
             cell,
@@ -123,7 +147,29 @@ impl HeightField {
             h_max,
             flat_height: 0.0,
             steps: None,
+            tile_min,
+            tiles,
         }
+    }
+
+    /// Lowest surface height over the tiles covering an xy box.
+    #[inline]
+    fn min_over(&self, x0: f32, x1: f32, y0: f32, y1: f32) -> f32 {
+        if self.tile_min.is_empty() {
+            return self.h_min;
+        }
+        let ts = self.cell * TILE as f32;
+        let ix = |x: f32, m: usize| (((x + self.half[0]) / ts).max(0.0) as usize).min(m - 1);
+        let iy = |y: f32, m: usize| (((y + self.half[1]) / ts).max(0.0) as usize).min(m - 1);
+        let (i0, i1) = (ix(x0, self.tiles[0]), ix(x1, self.tiles[0]));
+        let (j0, j1) = (iy(y0, self.tiles[1]), iy(y1, self.tiles[1]));
+        let mut m = f32::INFINITY;
+        for j in j0..=j1 {
+            for i in i0..=i1 {
+                m = m.min(self.tile_min[j * self.tiles[0] + i]);
+            }
+        }
+        m
     }
 
     #[inline]
@@ -140,7 +186,7 @@ impl HeightField {
     #[inline]
     pub fn height(&self, x: f32, y: f32) -> f32 {
         if let Some((lo, hi)) = self.steps {
-            return if x < 0.0 { lo } else { hi };
+            return if y < 0.0 { lo } else { hi };
         }
         if self.h.is_empty() {
             return self.flat_height;
@@ -236,7 +282,12 @@ impl HeightField {
             }
             return None;
         }
-        if o.z.max(z1) < self.h_min {
+        let z_top = o.z.max(z1);
+        if z_top < self.h_min {
+            return None;
+        }
+        let (x1, y1) = (o.x + d.x * t_max, o.y + d.y * t_max);
+        if z_top < self.min_over(o.x.min(x1), o.x.max(x1), o.y.min(y1), o.y.max(y1)) {
             return None;
         }
         let dt = self.step();
@@ -305,6 +356,21 @@ mod tests {
             assert!((p2 - p).length() < 2e-3, "{p} {p2}");
         }
         assert!(hf.h_max > 0.1 && hf.h_min < -0.1);
+    }
+
+    #[test]
+    fn tile_minima_bound_the_surface() {
+        let s = Sphere {
+            centre: [1.0, -2.0, 0.2],
+            radius: 0.8,
+            material: 1,
+        };
+        let hf = HeightField::relief([6.0, 6.0], 0.1, 0.3, 1.5, &[s], 5);
+        let mut rng = Rng::new(8, 8);
+        for _ in 0..20_000 {
+            let (x, y) = (rng.uniform() * 12.0 - 6.0, rng.uniform() * 12.0 - 6.0);
+            assert!(hf.min_over(x, x, y, y) <= hf.height(x, y) + 1e-6, "{x} {y}");
+        }
     }
 
     #[test]
