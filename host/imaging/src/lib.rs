@@ -25,9 +25,12 @@ pub mod image;
 pub mod linalg;
 pub mod lm;
 pub mod photometric;
+pub mod pipeline;
 pub mod rectified;
 pub mod rectify;
 pub mod response;
+#[cfg(feature = "sim")]
+pub mod sim_cal;
 pub mod synth;
 pub mod zhang;
 

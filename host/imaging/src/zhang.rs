@@ -235,6 +235,12 @@ pub struct ZhangOptions {
     pub distortion: bool,
     /// Keep fx = fy and the principal point at the image centre (flat single-plane views).
     pub fix_principal_point: bool,
+    /// Prior on the distance from the camera centre to the board origin,
+    /// (mm, standard deviation mm): the rig's mechanics. With a single board
+    /// plane it fixes the focal length / distance trade-off of near-frontal views.
+    pub centre_distance: Option<(f64, f64)>,
+    /// Focal length to start from when the views cannot give one (fronto-parallel).
+    pub initial_focal: Option<f64>,
 }
 
 /// Calibrate one camera from views of a planar target.
@@ -275,9 +281,15 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
         Some(k) if plausible(&k) => k,
         _ => {
             assumed = true;
-            let f = focal_only(&hs, cx0, cy0).ok_or_else(|| {
-                Error::Numeric("views determine no focal length (fronto-parallel?)".into())
-            })?;
+            let f = focal_only(&hs, cx0, cy0)
+                .filter(|f| {
+                    opts.initial_focal
+                        .is_none_or(|f0| (f / f0 - 1.0).abs() < 0.2)
+                })
+                .or(opts.initial_focal)
+                .ok_or_else(|| {
+                    Error::Numeric("views determine no focal length (fronto-parallel?)".into())
+                })?;
             Intrinsics {
                 fx: f,
                 fy: f,
@@ -295,7 +307,13 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
     for (r, t) in &poses {
         p.extend_from_slice(&[r.x, r.y, r.z, t.x, t.y, t.z]);
     }
-    let m: usize = views.iter().map(|v| 2 * v.object.len()).sum();
+    let m_points: usize = views.iter().map(|v| 2 * v.object.len()).sum();
+    let m = m_points
+        + if opts.centre_distance.is_some() {
+            views.len()
+        } else {
+            0
+        };
     let unpack = |p: &[f64]| -> Intrinsics {
         let (fy, cx, cy) = if assumed {
             (p[0], cx0, cy0)
@@ -331,6 +349,14 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
                 i += 2;
             }
         }
+        if let Some((d, sd)) = opts.centre_distance {
+            // One pixel of residual per standard deviation of the prior.
+            for vi in 0..views.len() {
+                let q = &p[6 + 6 * vi..12 + 6 * vi];
+                out[i] = (DVec3::new(q[3], q[4], q[5]).length() - d) / sd;
+                i += 1;
+            }
+        }
     };
     let steps: Vec<f64> = p
         .iter()
@@ -343,7 +369,10 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
             }
         })
         .collect();
-    let rep = lm::minimise(&mut p, m, &steps, 200, residuals);
+    lm::minimise(&mut p, m, &steps, 200, &residuals);
+    let mut r = vec![0.0; m];
+    residuals(&p, &mut r);
+    let point_cost: f64 = r[..m_points].iter().map(|x| x * x).sum();
     let intrinsics = unpack(&p);
     let poses = (0..views.len())
         .map(|vi| {
@@ -354,7 +383,7 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
     Ok(Calibrated {
         intrinsics,
         poses,
-        rms: (rep.final_cost / (m / 2) as f64).sqrt(),
+        rms: (point_cost / (m_points / 2) as f64).sqrt(),
         principal_point_assumed: assumed,
     })
 }
@@ -452,6 +481,8 @@ mod tests {
             image_height: h,
             distortion: true,
             fix_principal_point: false,
+            centre_distance: None,
+            initial_focal: None,
         };
         let cal = calibrate(&views, opts).unwrap();
         let fe = (cal.intrinsics.fx / k.fx - 1.0)

@@ -1,0 +1,777 @@
+//! Calibration on the simulated rig: render the calibration targets of
+//! sim-light through its true (perturbed) rig, run every calibration step on
+//! the 8-bit frames exactly as on the real rig, and report recovered against
+//! true values. Only this module knows the frames are simulated.
+
+use std::f64::consts::PI;
+
+use glam::{DMat3, DQuat, DVec2, DVec3};
+use sim_light::sample::SceneDesc;
+use sim_light::{Illumination, LaserOn, RigTruth, SimQuality, World};
+
+use crate::calibration::{Calibration, LampCal, LaserCal, Turntable};
+use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
+use crate::corners::detect_checkerboard;
+use crate::hdr::{self, MergeOptions};
+use crate::image::{Image8, ImageF};
+use crate::photometric;
+use crate::rectify::{self, Grid};
+use crate::response::{self, Bracket, FitRange, MnOptions};
+use crate::zhang::{self, PlanarView, ZhangOptions};
+use crate::{Error, Result};
+
+/// One line of the recovered-vs-true table.
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub quantity: String,
+    pub recovered: f64,
+    pub truth: f64,
+    pub error: f64,
+    pub target: String,
+    pub ok: bool,
+}
+
+impl std::fmt::Display for Row {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:<34} {:>14.6} {:>14.6} {:>12.3e}  {:<14} {}",
+            self.quantity,
+            self.recovered,
+            self.truth,
+            self.error,
+            self.target,
+            if self.ok { "ok" } else { "MISSED" }
+        )
+    }
+}
+
+/// The simulated rig and how finely to simulate it.
+pub struct SimCalibrator {
+    pub rig: RigTruth,
+    pub quality: SimQuality,
+    pub seed: u64,
+    /// Cameras to calibrate (the used ones: 1..=7).
+    pub cameras: Vec<usize>,
+}
+
+const SENSOR_GAIN: f64 = 1.0;
+
+impl SimCalibrator {
+    pub fn new(seed: u64, quality: SimQuality) -> Self {
+        SimCalibrator {
+            rig: RigTruth::perturbed(seed),
+            quality,
+            seed,
+            cameras: (1..8).collect(),
+        }
+    }
+
+    fn binning(&self) -> u32 {
+        self.quality.downscale
+    }
+
+    fn world(&self, preset: &str) -> Result<World> {
+        let desc = SceneDesc::preset(preset)
+            .map_err(|e| Error::Input(format!("sim scene {preset}: {e}")))?;
+        World::new(desc, self.rig.clone(), self.quality)
+            .map_err(|e| Error::Input(format!("sim world: {e}")))
+    }
+
+    /// Brackets (one per camera of `self.cameras`) of one rig pose.
+    fn capture(
+        &self,
+        world: &World,
+        illum: &Illumination,
+        exposures: &[f64],
+        tag: u64,
+    ) -> Result<Vec<Vec<Image8>>> {
+        let mask = self.cameras.iter().fold(0u8, |m, &c| m | (1 << c));
+        let pose = world
+            .render_pose(illum, mask, self.seed ^ tag.wrapping_mul(0x9E37_79B9))
+            .map_err(|e| Error::Input(format!("sim render: {e}")))?;
+        self.cameras
+            .iter()
+            .map(|&k| {
+                let rad = pose.images[k]
+                    .as_ref()
+                    .ok_or_else(|| Error::Input(format!("camera {k} not rendered")))?;
+                exposures
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &t)| {
+                        let f = world.sensor(k).expose(
+                            rad,
+                            t,
+                            SENSOR_GAIN,
+                            tag * 1000 + i as u64 * 17 + k as u64,
+                        );
+                        Image8::new(f.width as usize, f.height as usize, 3, f.rgb)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn lamp_illum(&self, turntable: f64, lamp: usize) -> Illumination {
+        Illumination {
+            turntable_rad: turntable,
+            light_arc_rad: 0.0,
+            galvo_rad: 0.0,
+            laser: None,
+            lamps: 1 << lamp,
+        }
+    }
+
+    /// The nominal camera k as a CameraModel at this binning (pixel centres on integers).
+    pub fn nominal_camera(&self, k: usize) -> CameraModel {
+        let g = hardware::NOMINAL_GEOMETRY;
+        let m = g.cameras[k];
+        let pos = DVec3::new(
+            m.elevation.cos() * m.azimuth.cos(),
+            m.elevation.cos() * m.azimuth.sin(),
+            m.elevation.sin(),
+        ) * m.distance;
+        truth_like_camera(
+            pos,
+            g.sensor.focal_px,
+            [g.sensor.width as f64 / 2.0, g.sensor.height as f64 / 2.0],
+            self.binning(),
+        )
+    }
+
+    /// The true camera k as a CameraModel at this binning.
+    pub fn true_camera(&self, k: usize) -> CameraModel {
+        let c = &self.rig.cameras[k];
+        let r = c.rotation_mat();
+        let b = self.binning() as f64;
+        let intr = Intrinsics {
+            fx: c.focal_px[0] / b,
+            fy: c.focal_px[1] / b,
+            cx: c.principal_px[0] / b - 0.5,
+            cy: c.principal_px[1] / b - 0.5,
+            k1: c.k1,
+            k2: c.k2,
+        };
+        let t = -(r * c.position_vec());
+        CameraModel {
+            intrinsics: intr,
+            rotation: rodrigues_inv(r).to_array(),
+            translation: t.to_array(),
+        }
+    }
+
+    /// Camera responses from a bracket of the colour pattern (Mitsunaga-Nayar).
+    pub fn response(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let world = self.world("colour-pattern")?;
+        let exposures = [0.002, 0.005, 0.0125, 0.03, 0.075, 0.2];
+        let brackets = self.capture(&world, &self.lamp_illum(0.0, 7), &exposures, 1)?;
+        for (&k, frames) in self.cameras.iter().zip(brackets) {
+            let b = Bracket {
+                frames,
+                exposures: exposures.to_vec(),
+            };
+            let mut curves = Vec::new();
+            let mut worst = 0.0f64;
+            for c in 0..3 {
+                let fit = response::fit_mitsunaga_nayar(&b, c, MnOptions::default())?;
+                let truth = self.rig.cameras[k].response.clone();
+                // The true inverse response: m with I(m) = Z / 255, by bisection.
+                let inv = |z: f64| {
+                    let (mut lo, mut hi) = (0.0, 1.0);
+                    for _ in 0..60 {
+                        let mid = 0.5 * (lo + hi);
+                        if truth.eval(mid) * 255.0 < z {
+                            lo = mid
+                        } else {
+                            hi = mid
+                        }
+                    }
+                    0.5 * (lo + hi)
+                };
+                let e = response::relative_error(
+                    &|z| fit.curve.linear(z),
+                    &inv,
+                    FitRange {
+                        z_min: 20,
+                        z_max: 245,
+                    },
+                );
+                worst = worst.max(e);
+                curves.push(fit.curve);
+            }
+            rows.push(Row {
+                quantity: format!("camera {k} response max rel. error"),
+                recovered: worst,
+                truth: 0.0,
+                error: worst,
+                target: "< 0.01".into(),
+                ok: worst < 0.01,
+            });
+            cal.camera_mut(k).response = curves;
+        }
+        Ok(())
+    }
+
+    fn merged(
+        &self,
+        cal: &Calibration,
+        k: usize,
+        frames: &[Image8],
+        exposures: &[f64],
+    ) -> Result<ImageF> {
+        let resp = cal
+            .camera(k)
+            .map(|c| c.response.clone())
+            .filter(|r| !r.is_empty())
+            .ok_or_else(|| {
+                Error::Input(format!(
+                    "camera {k} has no response; run the response step first"
+                ))
+            })?;
+        let refs: Vec<&Image8> = frames.iter().collect();
+        hdr::merge(&refs, exposures, &resp, MergeOptions::default())
+    }
+
+    /// Intrinsics, distortion and poses (Zhang), turntable axis, from the checkerboard.
+    pub fn geometry(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let world = self.world("checkerboard")?;
+        let thetas: Vec<f64> = (0..6).map(|i| i as f64 * PI / 3.0 + 0.2).collect();
+        let b = self.binning() as f64;
+        // Inner corners of the 60 mm board of 5 mm squares, sample frame.
+        let board: Vec<DVec2> = (-5..=5)
+            .flat_map(|j| (-5..=5).map(move |i| DVec2::new(i as f64 * 5.0, j as f64 * 5.0)))
+            .collect();
+        let mut per_cam: Vec<Vec<PlanarView>> = vec![Vec::new(); self.cameras.len()];
+        for (vi, &theta) in thetas.iter().enumerate() {
+            let frames =
+                self.capture(&world, &self.lamp_illum(theta, 7), &[0.03], 100 + vi as u64)?;
+            for (ci, (&k, f)) in self.cameras.iter().zip(frames).enumerate() {
+                let img = &f[0];
+                let nominal = self.nominal_camera(k);
+                let rz = DMat3::from_rotation_z(theta);
+                let pred: Vec<Option<DVec2>> = board
+                    .iter()
+                    .map(|p| nominal.project(rz * DVec3::new(p.x, p.y, 0.0)))
+                    .collect();
+                let visible: Vec<usize> = (0..board.len())
+                    .filter(|&i| {
+                        pred[i].is_some_and(|q| {
+                            q.x > 8.0
+                                && q.y > 8.0
+                                && q.x < img.width as f64 - 9.0
+                                && q.y < img.height as f64 - 9.0
+                        })
+                    })
+                    .collect();
+                if visible.len() < 12 {
+                    continue;
+                }
+                let pts: Vec<DVec2> = visible
+                    .iter()
+                    .map(|&i| pred[i].unwrap_or_default())
+                    .collect();
+                // Square size in pixels near the board centre, from the prediction.
+                let sq = nominal
+                    .project(rz * DVec3::new(5.0, 0.0, 0.0))
+                    .zip(nominal.project(rz * DVec3::ZERO));
+                let sq2 = nominal
+                    .project(rz * DVec3::new(0.0, 5.0, 0.0))
+                    .zip(nominal.project(rz * DVec3::ZERO));
+                let square_px = match (sq, sq2) {
+                    (Some((a, o)), Some((c, _))) => (a - o).length().min((c - o).length()),
+                    _ => continue,
+                };
+                let gray = img.gray_f32();
+                let Ok(found) = detect_checkerboard(&gray, img.width, img.height, &pts, square_px)
+                else {
+                    continue;
+                };
+                let mut v = PlanarView {
+                    object: Vec::new(),
+                    image: Vec::new(),
+                };
+                for (&i, f) in visible.iter().zip(found) {
+                    if let Some(f) = f {
+                        v.object.push(board[i]);
+                        v.image.push(f);
+                    }
+                }
+                if v.object.len() >= 12 {
+                    per_cam[ci].push(v);
+                }
+            }
+        }
+        let mut axis_samples = Vec::new();
+        for (ci, &k) in self.cameras.iter().enumerate() {
+            let views = &per_cam[ci];
+            if views.len() < 2 {
+                rows.push(Row {
+                    quantity: format!("camera {k} checkerboard views"),
+                    recovered: views.len() as f64,
+                    truth: thetas.len() as f64,
+                    error: f64::NAN,
+                    target: ">= 2".into(),
+                    ok: false,
+                });
+                continue;
+            }
+            let g = hardware::NOMINAL_GEOMETRY;
+            let (w, h) = (
+                (g.sensor.width as f64 / b) as usize,
+                (g.sensor.height as f64 / b) as usize,
+            );
+            let opts = ZhangOptions {
+                image_width: w,
+                image_height: h,
+                distortion: true,
+                fix_principal_point: true,
+                centre_distance: Some((g.cameras[k].distance, 1.0)),
+                initial_focal: Some(g.sensor.focal_px / b),
+            };
+            let res = match zhang::calibrate(views, opts) {
+                Ok(r) => r,
+                Err(e) => {
+                    rows.push(Row {
+                        quantity: format!("camera {k} Zhang: {e}"),
+                        recovered: f64::NAN,
+                        truth: f64::NAN,
+                        error: f64::NAN,
+                        target: "converge".into(),
+                        ok: false,
+                    });
+                    continue;
+                }
+            };
+            // World pose: views are sample -> camera at turntable theta_i; world = Rz(theta) sample.
+            let view_thetas: Vec<f64> = thetas.iter().copied().take(views.len()).collect();
+            let mut q_sum = glam::DVec4::ZERO;
+            let mut t_sum = DVec3::ZERO;
+            let mut q0: Option<DQuat> = None;
+            for (i, (r, t)) in res.poses.iter().enumerate() {
+                let rcw = rodrigues(*r) * DMat3::from_rotation_z(view_thetas[i]).transpose();
+                let mut q = DQuat::from_mat3(&rcw);
+                if let Some(q0) = q0 {
+                    if q.dot(q0) < 0.0 {
+                        q = -q;
+                    }
+                } else {
+                    q0 = Some(q);
+                }
+                q_sum += glam::DVec4::from(q);
+                t_sum += *t;
+            }
+            let q = DQuat::from_vec4(q_sum).normalize();
+            let n = res.poses.len() as f64;
+            let model = CameraModel {
+                intrinsics: res.intrinsics,
+                rotation: rodrigues_inv(DMat3::from_quat(q)).to_array(),
+                translation: (t_sum / n).to_array(),
+            };
+            // Turntable axis from the relative rotation of the first and last views (sample frame).
+            if res.poses.len() >= 2 {
+                let r0 = rodrigues(res.poses[0].0);
+                let r1 = rodrigues(res.poses[res.poses.len() - 1].0);
+                let rel = r0.transpose() * r1;
+                let (ax, ang) = DQuat::from_mat3(&rel).to_axis_angle();
+                if ang.abs() > 0.3 {
+                    axis_samples.push(if ax.z < 0.0 { -ax } else { ax });
+                }
+            }
+            let truth = self.true_camera(k);
+            let full = |m: &CameraModel| full_res(m, b);
+            let (rf, tf) = (full(&model), full(&truth));
+            let fe = (rf.intrinsics.fx / tf.intrinsics.fx - 1.0)
+                .abs()
+                .max((rf.intrinsics.fy / tf.intrinsics.fy - 1.0).abs());
+            rows.push(Row {
+                quantity: format!("camera {k} focal fx (px, full res)"),
+                recovered: rf.intrinsics.fx,
+                truth: tf.intrinsics.fx,
+                error: fe,
+                target: "< 0.005 rel".into(),
+                ok: fe < 0.005,
+            });
+            rows.push(Row {
+                quantity: format!("camera {k} reprojection RMS (px)"),
+                recovered: res.rms * b,
+                truth: 0.0,
+                error: res.rms * b,
+                target: "< 0.3".into(),
+                ok: res.rms * b < 0.3,
+            });
+            let ce = (model.centre() - truth.centre()).length();
+            rows.push(Row {
+                quantity: format!("camera {k} centre error (mm)"),
+                recovered: ce,
+                truth: 0.0,
+                error: ce,
+                target: "report".into(),
+                ok: true,
+            });
+            rows.push(Row {
+                quantity: format!("camera {k} k1"),
+                recovered: rf.intrinsics.k1,
+                truth: tf.intrinsics.k1,
+                error: (rf.intrinsics.k1 - tf.intrinsics.k1).abs(),
+                target: "report".into(),
+                ok: true,
+            });
+            let c = cal.camera_mut(k);
+            c.geometry = Some(full(&model));
+            c.reprojection_rms_px = Some(res.rms * b);
+        }
+        if !axis_samples.is_empty() {
+            let axis = (axis_samples.iter().copied().sum::<DVec3>()).normalize();
+            let truth = DVec3::from(self.rig.turntable_axis).normalize();
+            let err = axis.angle_between(truth).to_degrees();
+            rows.push(Row {
+                quantity: "turntable axis error (deg)".into(),
+                recovered: err,
+                truth: 0.0,
+                error: err,
+                target: "report".into(),
+                ok: true,
+            });
+            cal.turntable = Some(Turntable {
+                axis: axis.to_array(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Camera model at this binning from a full-resolution calibration entry.
+    fn cam_at_binning(&self, cal: &Calibration, k: usize) -> Result<CameraModel> {
+        let g = cal.camera(k).and_then(|c| c.geometry).ok_or_else(|| {
+            Error::Input(format!(
+                "camera {k} has no geometry; run the geometry step first"
+            ))
+        })?;
+        Ok(crate::pipeline::binned(&g, self.binning()))
+    }
+
+    /// Relative colour of the cameras from the colour pattern (reference: the top camera).
+    pub fn colour(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let world = self.world("colour-pattern")?;
+        let exposures = [0.005, 0.02, 0.08];
+        let brackets = self.capture(&world, &self.lamp_illum(0.0, 7), &exposures, 2)?;
+        let patch = 9.0;
+        let grid = Grid::centred(54, 1.0);
+        let mut means = Vec::new();
+        for (&k, frames) in self.cameras.iter().zip(&brackets) {
+            let hdr = self.merged(cal, k, frames, &exposures)?;
+            let cam = self.cam_at_binning(cal, k)?;
+            let rect = rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &[1.0; 3]);
+            // Mean of the central half of each of the 24 patches (4 rows x 6 columns).
+            let mut m = Vec::new();
+            for row in 0..4 {
+                for col in 0..6 {
+                    let cx = -3.0 * patch + (col as f64 + 0.5) * patch;
+                    let cy = 2.0 * patch - (row as f64 + 0.5) * patch;
+                    let mut acc = [0.0; 3];
+                    let mut n = 0.0;
+                    for j in 0..grid.height {
+                        for i in 0..grid.width {
+                            let p = grid.texel_centre(i, j);
+                            if (p.x - cx).abs() < patch / 4.0 && (p.y - cy).abs() < patch / 4.0 {
+                                let v = [rect.get(i, j, 0), rect.get(i, j, 1), rect.get(i, j, 2)];
+                                if v.iter().all(|x| x.is_finite()) {
+                                    for c in 0..3 {
+                                        acc[c] += v[c] as f64;
+                                    }
+                                    n += 1.0;
+                                }
+                            }
+                        }
+                    }
+                    m.push(if n > 0.0 {
+                        acc.map(|a| a / n)
+                    } else {
+                        [f64::NAN; 3]
+                    });
+                }
+            }
+            means.push(m);
+        }
+        let reference = self.cameras.len() - 1;
+        let gains = photometric::colour_gains(&means, reference)?;
+        let kref = self.cameras[reference];
+        for (&k, g) in self.cameras.iter().zip(&gains) {
+            let mut worst = 0.0f64;
+            for c in 0..3 {
+                let truth =
+                    self.rig.cameras[kref].colour_gain[c] / self.rig.cameras[k].colour_gain[c];
+                worst = worst.max((g[c] / truth - 1.0).abs());
+            }
+            rows.push(Row {
+                quantity: format!("camera {k} colour gain max rel. err"),
+                recovered: worst,
+                truth: 0.0,
+                error: worst,
+                target: "< 0.01".into(),
+                ok: worst < 0.01,
+            });
+            cal.camera_mut(k).colour_gain = Some(*g);
+        }
+        Ok(())
+    }
+
+    /// Radiance in camera units (reference camera) per W sr^-1 m^-2 of true radiance, channel c.
+    fn camera_unit(&self, c: usize) -> f64 {
+        let kref = *self.cameras.last().unwrap_or(&7);
+        self.rig.cameras[kref].colour_gain[c] * sim_light::sensor::SENSITIVITY
+            / sim_light::sensor::FULL_WELL_E
+    }
+
+    /// Lamp irradiance from the reference white (directions: nominal, see docs).
+    pub fn lamps(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let world = self.world("white")?;
+        let rho = 0.95;
+        let g = hardware::NOMINAL_GEOMETRY;
+        let k = *self.cameras.last().unwrap_or(&7);
+        let cam = self.cam_at_binning(cal, k)?;
+        let gain = cal
+            .camera(k)
+            .and_then(|c| c.colour_gain)
+            .unwrap_or([1.0; 3]);
+        for (li, lamp) in g.lamps.iter().enumerate().filter(|(_, l)| l.used) {
+            let dir = DVec3::new(
+                lamp.elevation.cos() * g.light_arc_azimuth0.cos(),
+                lamp.elevation.cos() * g.light_arc_azimuth0.sin(),
+                lamp.elevation.sin(),
+            );
+            let exposures = [0.01, 0.04, 0.16, 0.64];
+            let frames = {
+                let mut one = SimCalibrator {
+                    rig: self.rig.clone(),
+                    quality: self.quality,
+                    seed: self.seed,
+                    cameras: vec![k],
+                };
+                one.cameras = vec![k];
+                one.capture(
+                    &world,
+                    &self.lamp_illum(0.0, li),
+                    &exposures,
+                    300 + li as u64,
+                )?
+                .remove(0)
+            };
+            let hdr = self.merged(cal, k, &frames, &exposures)?;
+            let grid = Grid::centred(20, 1.0);
+            let rect =
+                rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &gain.map(|x| x as f32));
+            let mut l = [0.0; 3];
+            for c in 0..3 {
+                let v: Vec<f64> = rect
+                    .data
+                    .iter()
+                    .skip(c)
+                    .step_by(3)
+                    .filter(|v| v.is_finite())
+                    .map(|&v| v as f64)
+                    .collect();
+                l[c] = v.iter().sum::<f64>() / v.len().max(1) as f64;
+            }
+            let e = photometric::lamp_irradiance(l, rho, dir.z)?;
+            let mut worst = 0.0f64;
+            for c in 0..3 {
+                let truth = self.rig.lamps[li].irradiance[c] * self.camera_unit(c);
+                worst = worst.max((e[c] / truth - 1.0).abs());
+            }
+            rows.push(Row {
+                quantity: format!("lamp {li} irradiance max rel. err"),
+                recovered: worst,
+                truth: 0.0,
+                error: worst,
+                target: "report".into(),
+                ok: true,
+            });
+            cal.lamp.retain(|x| x.index != li);
+            cal.lamp.push(LampCal {
+                index: li,
+                direction: dir.to_array(),
+                irradiance: Some(e),
+            });
+        }
+        cal.lamp.sort_by_key(|l| l.index);
+        Ok(())
+    }
+
+    /// Laser-plane angle (two-height target) and flux per channel (reference white).
+    pub fn laser(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let k = *self.cameras.last().unwrap_or(&7);
+        let cam = self.cam_at_binning(cal, k)?;
+        let gain = cal
+            .camera(k)
+            .and_then(|c| c.colour_gain)
+            .unwrap_or([1.0; 3]);
+        let one = SimCalibrator {
+            rig: self.rig.clone(),
+            quality: self.quality,
+            seed: self.seed,
+            cameras: vec![k],
+        };
+        let g = hardware::NOMINAL_GEOMETRY;
+        let mut angles = Vec::new();
+        // Two-height target turned by 90 deg: the stripe (along world y) crosses the step edge.
+        let mut world = self.world("two-height")?;
+        let theta = PI / 2.0;
+        for &elev in &g.laser.positions {
+            world.set_laser_mount(elev);
+            let illum = Illumination {
+                turntable_rad: theta,
+                light_arc_rad: 0.0,
+                galvo_rad: 0.0,
+                laser: Some(LaserOn {
+                    channel: 0,
+                    power: 1.0,
+                }),
+                lamps: 0,
+            };
+            let exposures = [0.0005, 0.002, 0.008, 0.032];
+            let frames = one
+                .capture(&world, &illum, &exposures, 400 + (elev * 1000.0) as u64)?
+                .remove(0);
+            let hdr = self.merged(cal, k, &frames, &exposures)?;
+            let grid = Grid::centred(240, 0.1);
+            let mut lines = Vec::new();
+            for (z, keep_low) in [(0.0, true), (10.0, false)] {
+                let mut rect = rectify::rectify_at_height(
+                    &hdr,
+                    &cam,
+                    cal.axis(),
+                    theta,
+                    &grid,
+                    &[gain[0] as f32, 0.0, 0.0],
+                    z,
+                );
+                // Keep only this step's half of the target (sample x < 0 low, x >= 0 high), away from the edge.
+                for j in 0..grid.height {
+                    for i in 0..grid.width {
+                        let p = grid.texel_centre(i, j);
+                        let mine = if keep_low { p.x < -2.0 } else { p.x > 2.0 };
+                        if !mine {
+                            rect.set(i, j, 0, f32::NAN);
+                        }
+                    }
+                }
+                let max = rect
+                    .data
+                    .iter()
+                    .step_by(3)
+                    .filter(|v| v.is_finite())
+                    .fold(0f32, |a, &b| a.max(b));
+                lines.push(rectify::fit_stripe_line(&rect, 0, &grid, 0.3 * max)?);
+            }
+            // Towards the laser, in the sample frame.
+            let az = g.light_arc_azimuth0;
+            let towards = DMat3::from_rotation_z(-theta) * DVec3::new(az.cos(), az.sin(), 0.0);
+            let (low, high) = (&lines[0], &lines[1]);
+            let n = DVec2::new(-low.dir.y, low.dir.x);
+            let n = if n.dot(towards.truncate()) < 0.0 {
+                -n
+            } else {
+                n
+            };
+            let d = (high.point - low.point).dot(n);
+            let angle = 10f64.atan2(d);
+            let geo = self.rig.laser_geometry(elev, 0.0, 0.0);
+            let horiz = (geo.origin - geo.centre)
+                .truncate()
+                .dot(DVec2::new(az.cos(), az.sin()));
+            let truth = (geo.origin.z - geo.centre.z).atan2(horiz);
+            let err = (angle - truth).to_degrees();
+            rows.push(Row {
+                quantity: format!("laser plane angle at {:.0} deg (deg)", elev.to_degrees()),
+                recovered: angle.to_degrees(),
+                truth: truth.to_degrees(),
+                error: err.abs(),
+                target: "< 0.2 deg".into(),
+                ok: err.abs() < 0.2,
+            });
+            angles.push([elev, angle]);
+        }
+        // Flux: vertical stripe on the reference white, each laser.
+        let mut world = self.world("white")?;
+        world.set_laser_mount(PI / 2.0);
+        let rho = 0.95;
+        let mut flux = [0.0; 3];
+        for c in 0..3 {
+            let illum = Illumination {
+                turntable_rad: 0.0,
+                light_arc_rad: 0.0,
+                galvo_rad: 0.0,
+                laser: Some(LaserOn {
+                    channel: c,
+                    power: 1.0,
+                }),
+                lamps: 0,
+            };
+            let exposures = [0.0005, 0.002, 0.008, 0.032, 0.128];
+            let frames = one
+                .capture(&world, &illum, &exposures, 500 + c as u64)?
+                .remove(0);
+            let hdr = self.merged(cal, k, &frames, &exposures)?;
+            let grid = Grid::centred(200, 0.2);
+            let mut scale = [0f32; 3];
+            scale[c] = gain[c] as f32;
+            let rect = rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &scale);
+            let vals: Vec<f32> = rect.data.iter().skip(c).step_by(3).copied().collect();
+            // The whole 40 mm window sees 40 mm of the stripe (it runs along the window).
+            let window = grid.width as f64 * grid.texel_mm;
+            flux[c] =
+                photometric::laser_flux_per_mm(&vals, grid.texel_mm * grid.texel_mm, rho, window)?;
+            let truth = self.rig.laser.power_w[c] / self.rig.laser.stripe_length
+                * self.camera_unit(c)
+                * 1e6;
+            let err = (flux[c] / truth - 1.0).abs();
+            rows.push(Row {
+                quantity: format!("laser {c} flux per mm rel. err"),
+                recovered: flux[c],
+                truth,
+                error: err,
+                target: "report".into(),
+                ok: true,
+            });
+        }
+        cal.laser = Some(LaserCal {
+            plane_angles: angles,
+            flux_per_mm: Some(flux),
+        });
+        Ok(())
+    }
+}
+
+/// A camera at `pos` looking at the origin with image right = world +y (as the rig is built).
+fn truth_like_camera(pos: DVec3, focal_px: f64, principal: [f64; 2], binning: u32) -> CameraModel {
+    let forward = (-pos).normalize();
+    let right = (DVec3::Y - forward * forward.dot(DVec3::Y)).normalize();
+    let down = forward.cross(right);
+    let r = DMat3::from_cols(right, down, forward).transpose();
+    let b = binning as f64;
+    let intr = Intrinsics {
+        fx: focal_px / b,
+        fy: focal_px / b,
+        cx: principal[0] / b - 0.5,
+        cy: principal[1] / b - 0.5,
+        k1: 0.0,
+        k2: 0.0,
+    };
+    CameraModel {
+        intrinsics: intr,
+        rotation: rodrigues_inv(r).to_array(),
+        translation: (-(r * pos)).to_array(),
+    }
+}
+
+/// A binned camera model back at full resolution (inverse of `pipeline::binned`).
+pub fn full_res(m: &CameraModel, b: f64) -> CameraModel {
+    let mut c = *m;
+    let k = &mut c.intrinsics;
+    k.fx *= b;
+    k.fy *= b;
+    k.cx = (k.cx + 0.5) * b - 0.5;
+    k.cy = (k.cy + 0.5) * b - 0.5;
+    c
+}
