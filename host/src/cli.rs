@@ -21,10 +21,16 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     // One variant per command; keep one line each so parallel edits do not collide.
+    /// Calibrate the rig (response, colour, geometry, lamps, laser, all) into a calibration file.
+    Calibrate(cmd::calibrate::CalibrateArgs),
+    /// HDR-merge and rectify a capture directory into CAPTURE_DIR/rectified/.
+    Rectify(cmd::rectify::RectifyArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         // One arm per command.
+        Command::Calibrate(args) => cmd::calibrate::run(args),
+        Command::Rectify(args) => cmd::rectify::run(args),
     }
 }

@@ -1,1 +1,3 @@
 //! One module per `qhm` subcommand.
+pub mod calibrate;
+pub mod rectify;
