@@ -310,3 +310,25 @@ fn spawn_err(cfg: &SimConfig) -> String {
         Err(e) => e.to_string(),
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cli_server_prints_the_path_and_ends_with_the_link() {
+    // `qhm sim --pty` serves until Ctrl-C; a disconnect fault ends it too.
+    let mut cfg = SimConfig::seeded(24);
+    cfg.link.faults.disconnect_at_us = Some(200_000);
+    let mut out = Vec::new();
+    let t = Instant::now();
+    tokio::time::timeout(
+        Duration::from_secs(10),
+        sim::serve_pty_until_ctrl_c(&cfg, &mut out),
+    )
+    .await
+    .expect("ends after the disconnect")
+    .expect("serves");
+    let printed = String::from_utf8(out).unwrap();
+    assert!(
+        printed.starts_with("/dev/pts/") && printed.ends_with('\n'),
+        "{printed:?}"
+    );
+    assert!(t.elapsed() >= Duration::from_millis(200));
+}
