@@ -25,3 +25,6 @@ pub mod format;
 
 pub use exrio::{read_rgb, write_rgb};
 pub use format::{SaveOptions, SaveReport};
+pub mod fit;
+pub mod rectified;
+pub mod synth;

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
-use crate::dipole::{self, Dipole, SIGMA_T_PRIME_MAX};
+use crate::dipole::{self, SIGMA_T_PRIME_MAX, ScaledStripe};
 
 /// The CSV header of a profile file.
 pub const CSV_HEADER: &str = "distance_mm,intensity_per_mm";
@@ -260,12 +260,20 @@ pub fn auto_range(profile: &Profile, alpha_prime: f64, eta: f64) -> Result<(f64,
 }
 
 /// Sum of squared differences between I_D and the profile at `idx`.
-fn misfit(profile: &Profile, idx: &[usize], alpha_prime: f64, sigma_t_prime: f64, eta: f64) -> f64 {
-    let dp = Dipole::new(alpha_prime, sigma_t_prime, eta);
+fn misfit(profile: &Profile, idx: &[usize], table: &ScaledStripe, sigma_t_prime: f64) -> f64 {
+    let w = profile.bin_width_mm;
     idx.iter()
         .map(|&k| {
-            let e =
-                dp.stripe_bin(profile.distance_mm[k], profile.bin_width_mm) - profile.intensity[k];
+            let d = profile.distance_mm[k];
+            let model = if w > 0.0 {
+                crate::quad::GL5
+                    .iter()
+                    .map(|&(x, wt)| 0.5 * wt * table.eval(d + 0.5 * w * x, sigma_t_prime))
+                    .sum()
+            } else {
+                table.eval(d, sigma_t_prime)
+            };
+            let e = model - profile.intensity[k];
             e * e
         })
         .sum()
@@ -280,7 +288,13 @@ pub fn search_sigma_t_prime(
     alpha_prime: f64,
     eta: f64,
 ) -> (f64, f64) {
-    let eval = |s: f64| misfit(profile, idx, alpha_prime, s, eta);
+    let d_max = idx
+        .iter()
+        .map(|&k| profile.distance_mm[k])
+        .fold(0.0, f64::max)
+        + profile.bin_width_mm;
+    let table = ScaledStripe::new(alpha_prime, eta, SIGMA_T_PRIME_MAX * d_max * 1.01);
+    let eval = |s: f64| misfit(profile, idx, &table, s);
     let best_of = |grid: Vec<f64>| {
         grid.into_par_iter().map(|s| (s, eval(s))).reduce(
             || (f64::NAN, f64::INFINITY),
@@ -316,6 +330,8 @@ mod tests {
 
     /// A synthetic profile of the dipole itself, with optional multiplicative
     /// noise from a fixed-seed LCG (no rand dependency needed here).
+    use crate::dipole::Dipole;
+
     fn synthetic(a: f64, st: f64, noise: f64, seed: u64) -> Profile {
         let dp = Dipole::new(a, st, 1.3);
         let mut state = seed;

@@ -1,0 +1,72 @@
+//! Figures for issue 5, run with
+//! `cargo run --release -p qhm-model --example fit_bench`:
+//! the s'_t search for one channel, and the whole fit of a CI-scale
+//! synthetic capture (48×48 texels, 4 views, 9 scan positions, 3 passes).
+
+use std::time::Instant;
+
+use qhm_model::DipoleParams;
+use qhm_model::dipole::{Dipole, total_reflectance};
+use qhm_model::fit::{FitOptions, fit_capture};
+use qhm_model::profile::{Profile, fit_profile};
+use qhm_model::synth::{SynthSpec, write_synthetic};
+
+fn main() {
+    // One channel: whole milk red (Jensen et al. 2001), 400 profile points to 20 mm.
+    let p = DipoleParams::from_coefficients([2.55, 3.21, 3.77], [0.0011, 0.0024, 0.014], 1.3);
+    let dp = Dipole::new(p.alpha_prime[0], p.sigma_t_prime[0], 1.3);
+    let profile = Profile::new(
+        (0..400).map(|k| {
+            let d = k as f64 * 0.05;
+            (d, dp.stripe(d))
+        }),
+        0.0,
+    );
+    let r = total_reflectance(p.alpha_prime[0], 1.3);
+    let t = Instant::now();
+    let fixed = fit_profile(&profile, r, 1.3, Some((1.0, 15.0))).expect("fit");
+    let search = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let auto = fit_profile(&profile, r, 1.3, None).expect("fit");
+    let with_range = t.elapsed().as_secs_f64();
+    println!(
+        "s'_t search, one channel, {} points: {:.3} s (true {:.4}, fitted {:.4})",
+        fixed.points, search, p.sigma_t_prime[0], fixed.sigma_t_prime
+    );
+    println!(
+        "  with automatic range {:.2}:{:.2} mm: {:.3} s (fitted {:.4})",
+        auto.range_mm[0], auto.range_mm[1], with_range, auto.sigma_t_prime
+    );
+
+    let truth = DipoleParams {
+        alpha_prime: [0.995, 0.98, 0.9],
+        sigma_t_prime: [1.2, 1.8, 2.6],
+        eta: 1.3,
+    };
+    let dir = tempfile_dir();
+    let spec = SynthSpec::small(truth);
+    let t = Instant::now();
+    write_synthetic(&dir, &spec).expect("synthesise");
+    let synth = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let (model, timings) = fit_capture(&dir, &FitOptions::default()).expect("fit");
+    let whole = t.elapsed().as_secs_f64();
+    println!("synthetic CI-scale capture written in {synth:.2} s");
+    println!("whole fit: {whole:.2} s ({timings:?})");
+    for c in 0..3 {
+        println!(
+            "  channel {c}: a' {:.5} (true {:.5}), s'_t {:.4} (true {:.4})",
+            model.dipole.alpha_prime[c],
+            truth.alpha_prime[c],
+            model.dipole.sigma_t_prime[c],
+            truth.sigma_t_prime[c]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn tempfile_dir() -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("qhm-fit-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}

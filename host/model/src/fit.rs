@@ -1,0 +1,549 @@
+//! The whole fit (paper section 4.2): from a rectified capture to a
+//! [`MaterialModel`]. Per colour channel:
+//!
+//! 1. I(d) from the vertical (pass-2) stripe images: exitance per incident
+//!    flux per mm, π L / flux_per_mm (L averaged over views: the Lambertian
+//!    exitance conversion), binned by distance d from each stripe's line.
+//! 2. R = 2 ∫ I(d) dd; bins the capture lacks (near field or tail masked as
+//!    NaN) are filled from the dipole by iterating R -> a' -> s'_t -> the
+//!    fraction of the model profile the measured bins cover.
+//! 3. a' by inverting R_total, s'_t by the profile fit ([`crate::profile`]).
+//! 4. f(w_i) from pass-1 stripe sums over views, relative to the vertical.
+//! 5. f_v(p, v) = Σ_l L(p, v, l) / Σ_l I_D(d(p, l)) flux_l / π (the formula
+//!    after eq. 6 with I(p, l) from the dipole of eq. 5).
+//! 6. LRF = (L - f_v f(w_i) E cos θ_i (R_total - R_texel) / π) / E, negatives kept.
+
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
+use std::path::Path;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::ModelError;
+use crate::dipole::{self, Dipole, DipoleParams};
+use crate::model::{
+    EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
+    Texture,
+};
+use crate::profile::{ChannelFit, Profile, fit_profile};
+use crate::rectified::{Rectified, StripeEntry};
+
+/// Options of [`fit_capture`].
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    pub eta: f64,
+    /// Distance range for the s'_t fit (None: automatic per channel).
+    pub range: Option<(f64, f64)>,
+    /// Entrance table resolution.
+    pub n_theta: usize,
+    pub n_phi: usize,
+    /// Width of the distance bins of I(d), mm (None: an eighth of a texel).
+    pub bin_mm: Option<f64>,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            eta: dipole::DEFAULT_ETA,
+            range: None,
+            n_theta: 10,
+            n_phi: 24,
+            bin_mm: None,
+        }
+    }
+}
+
+/// Wall-clock of the fit stages, seconds.
+#[derive(Clone, Debug, Default)]
+pub struct FitTimings {
+    pub dipole: f64,
+    pub entrance: f64,
+    pub exiting: f64,
+    pub lrf: f64,
+}
+
+/// Directions are grouped when closer than this (radians).
+const SAME_DIR: f64 = 1e-3;
+
+fn dir_key(v: [f64; 3]) -> [i64; 3] {
+    v.map(|x| (x / SAME_DIR).round() as i64)
+}
+
+fn f32v(v: [f64; 3]) -> [f32; 3] {
+    v.map(|x| x as f32)
+}
+
+/// A channel's tabulated I_D(d), linear between 0.002 mm steps (exact
+/// quadrature per texel would dominate the fit's run time).
+struct StripeTable {
+    step: f64,
+    values: Vec<f64>,
+}
+
+impl StripeTable {
+    fn new(dp: &Dipole, d_max: f64) -> Self {
+        let step = 0.002;
+        let n = (d_max / step).ceil() as usize + 2;
+        StripeTable {
+            step,
+            values: (0..n)
+                .into_par_iter()
+                .map(|k| dp.stripe(k as f64 * step))
+                .collect(),
+        }
+    }
+    fn eval(&self, d: f64) -> f64 {
+        let x = d / self.step;
+        let k = x.floor() as usize;
+        if k + 1 >= self.values.len() {
+            return *self.values.last().expect("non-empty table");
+        }
+        let f = x - k as f64;
+        self.values[k] * (1.0 - f) + self.values[k + 1] * f
+    }
+}
+
+/// Fits the material model of the capture in `capture_dir`.
+pub fn fit_capture(
+    capture_dir: &Path,
+    opts: &FitOptions,
+) -> Result<(MaterialModel, FitTimings), ModelError> {
+    let data = Rectified::open(capture_dir)?;
+    let grid = data.index.grid.clone();
+    let (w, h) = (grid.width as usize, grid.height as usize);
+    let bin = opts.bin_mm.unwrap_or(grid.texel_mm / 8.0);
+    if !(bin.is_finite() && bin > 0.0) {
+        return Err(ModelError::Domain(format!(
+            "distance bin {bin} mm must be > 0"
+        )));
+    }
+    let diag_max = grid.texel_mm * ((w * w + h * h) as f64).sqrt();
+    let mut timings = FitTimings::default();
+    let mut notes = Vec::new();
+
+    // 1-3: the global dipole per channel from the vertical stripes.
+    let t0 = Instant::now();
+    let mut channels = Vec::new();
+    for c in 0..3u8 {
+        let entries: Vec<&StripeEntry> = data
+            .index
+            .stripe
+            .iter()
+            .filter(|s| s.pass == 2 && s.channel == c)
+            .collect();
+        if entries.is_empty() {
+            return Err(ModelError::Fit(format!(
+                "no pass-2 (vertical stripe) images for channel {c}"
+            )));
+        }
+        let n_bins = (diag_max / bin).ceil() as usize + 1;
+        // Per image: (sum, count) per distance bin, merged.
+        // Per bin: Σ I, Σ d and the count; points sit at the mean distance of
+        // their texels, so uneven coverage inside a bin does not bias the fit.
+        let (sum, dsum, count) = entries
+            .par_iter()
+            .map(|s| -> Result<(Vec<f64>, Vec<f64>, Vec<u64>), ModelError> {
+                let img = data.read_image(&s.file)?;
+                let mut sum = vec![0.0; n_bins];
+                let mut dsum = vec![0.0; n_bins];
+                let mut count = vec![0u64; n_bins];
+                for j in 0..h {
+                    for i in 0..w {
+                        let l = img.get(i, j)[c as usize] as f64;
+                        if !l.is_finite() {
+                            continue;
+                        }
+                        let d = s.distance(grid.centre(i, j));
+                        let b = (d / bin) as usize;
+                        if b < n_bins {
+                            sum[b] += PI * l / s.flux_per_mm;
+                            dsum[b] += d;
+                            count[b] += 1;
+                        }
+                    }
+                }
+                Ok((sum, dsum, count))
+            })
+            .try_reduce(
+                || (vec![0.0; n_bins], vec![0.0; n_bins], vec![0u64; n_bins]),
+                |mut a, b| {
+                    for k in 0..n_bins {
+                        a.0[k] += b.0[k];
+                        a.1[k] += b.1[k];
+                        a.2[k] += b.2[k];
+                    }
+                    Ok(a)
+                },
+            )?;
+        let profile = Profile::new(
+            (0..n_bins)
+                .filter(|&k| count[k] > 0)
+                .map(|k| (dsum[k] / count[k] as f64, sum[k] / count[k] as f64)),
+            0.0,
+        );
+        if profile.distance_mm.len() < 5 {
+            return Err(ModelError::Fit(format!(
+                "channel {c}: only {} distance bins have valid texels",
+                profile.distance_mm.len()
+            )));
+        }
+        let r_meas: f64 = 2.0 * profile.intensity.iter().sum::<f64>() * bin;
+        if !(r_meas > 0.0) {
+            return Err(ModelError::Fit(format!(
+                "channel {c}: no outgoing flux in the vertical stripe images"
+            )));
+        }
+        let mut r = r_meas;
+        let mut fit = None;
+        // The automatic range is chosen once, with the first R.
+        let mut range = opts.range;
+        for _ in 0..6 {
+            let r_used = r.min(1.0);
+            let f = fit_profile(&profile, r_used, opts.eta, range)
+                .map_err(|e| ModelError::Fit(format!("channel {c}: {e}")))?;
+            range = Some((f.range_mm[0], f.range_mm[1]));
+            let auto = fit
+                .as_ref()
+                .map_or(f.auto_range, |x: &(f64, crate::profile::ProfileFit)| {
+                    x.1.auto_range
+                });
+            let f = crate::profile::ProfileFit {
+                auto_range: auto,
+                ..f
+            };
+            let dp = Dipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
+            let covered: f64 = 2.0
+                * profile
+                    .distance_mm
+                    .iter()
+                    .map(|&d| dp.stripe(d))
+                    .sum::<f64>()
+                * bin
+                / dp.total();
+            fit = Some((r_used, f));
+            let next = r_meas / covered.clamp(1e-3, 1.0);
+            if (next - r).abs() < 1e-9 * r {
+                break;
+            }
+            r = next;
+        }
+        let (r_used, fit) = fit.expect("at least one iteration");
+        if r > 1.0 {
+            notes.push(format!(
+                "channel {c}: measured R = {r:.4} > 1, clamped to 1"
+            ));
+        }
+        channels.push(ChannelFit {
+            channel: c as usize,
+            reflectance: r_used,
+            profile,
+            fit,
+        });
+    }
+    let dipole = DipoleParams {
+        alpha_prime: std::array::from_fn(|c| channels[c].fit.alpha_prime),
+        sigma_t_prime: std::array::from_fn(|c| channels[c].fit.sigma_t_prime),
+        eta: opts.eta,
+    };
+    let tables: Vec<StripeTable> = (0..3)
+        .map(|c| StripeTable::new(&dipole.channel(c), diag_max))
+        .collect();
+    timings.dipole = t0.elapsed().as_secs_f64();
+
+    // 4: the entrance function.
+    let t0 = Instant::now();
+    let (entrance, entrance_samples) = fit_entrance(&data, opts, &mut notes)?;
+    timings.entrance = t0.elapsed().as_secs_f64();
+
+    // 5: the exiting function, per pass-2 view.
+    let t0 = Instant::now();
+    let mut views: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
+    for s in data.index.stripe.iter().filter(|s| s.pass == 2) {
+        views.entry(dir_key(s.view_dir)).or_insert(s.view_dir);
+    }
+    let fv: Vec<(Texture, usize)> = views
+        .keys()
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|key| -> Result<(Texture, usize), ModelError> {
+            let mut num = vec![[0.0f64; 3]; w * h];
+            let mut den = vec![[0.0f64; 3]; w * h];
+            for s in data
+                .index
+                .stripe
+                .iter()
+                .filter(|s| s.pass == 2 && dir_key(s.view_dir) == **key)
+            {
+                let c = s.channel as usize;
+                let [lo, hi] = channels[c].fit.range_mm;
+                let img = data.read_image(&s.file)?;
+                for j in 0..h {
+                    for i in 0..w {
+                        let l = img.get(i, j)[c] as f64;
+                        let d = s.distance(grid.centre(i, j));
+                        // Only where the dipole was fitted: the near field is not diffusion.
+                        if l.is_finite() && d >= lo && d <= hi {
+                            num[j * w + i][c] += l;
+                            den[j * w + i][c] += tables[c].eval(d) * s.flux_per_mm / PI;
+                        }
+                    }
+                }
+            }
+            let mut missing = 0;
+            let data = num
+                .iter()
+                .zip(&den)
+                .map(|(n, d)| {
+                    std::array::from_fn(|c| {
+                        if d[c] > 0.0 {
+                            (n[c] / d[c]) as f32
+                        } else {
+                            missing += 1;
+                            1.0
+                        }
+                    })
+                })
+                .collect();
+            Ok((
+                Texture {
+                    width: w,
+                    height: h,
+                    data,
+                },
+                missing,
+            ))
+        })
+        .collect::<Result<_, _>>()?;
+    let missing: usize = fv.iter().map(|x| x.1).sum();
+    if missing > 0 {
+        notes.push(format!(
+            "f_v: {missing} texel-channels had no stripe data in range; set to 1"
+        ));
+    }
+    let exiting = ExitingFunction {
+        views: views.values().map(|&v| f32v(v)).collect(),
+        maps: fv.into_iter().map(|x| x.0).collect(),
+    };
+    timings.exiting = t0.elapsed().as_secs_f64();
+
+    // 6: the local reflectance function from the lamp images.
+    let t0 = Instant::now();
+    // The texel's own area as an equal-area disc: the paper's x_i != x_o.
+    let r0 = grid.texel_mm / PI.sqrt();
+    let global: [f64; 3] = std::array::from_fn(|c| {
+        let dp = dipole.channel(c);
+        dp.total() - dp.disc_integral(r0)
+    });
+    let lrf: Vec<(LrfSample, Texture, usize)> = data
+        .index
+        .lamp
+        .par_iter()
+        .map(|lamp| -> Result<_, ModelError> {
+            let img = data.read_image(&lamp.file)?;
+            let f = entrance.eval(f32v(lamp.light_dir));
+            let cos_i = lamp.light_dir[2].max(0.0);
+            let wo = f32v(lamp.view_dir);
+            let mut nan = 0;
+            let out = (0..w * h)
+                .map(|p| {
+                    let uv = [
+                        ((p % w) as f32 + 0.5) / w as f32,
+                        ((p / w) as f32 + 0.5) / h as f32,
+                    ];
+                    let fv = exiting.eval(uv, wo);
+                    let l = img.data[p];
+                    std::array::from_fn(|c| {
+                        if !l[c].is_finite() {
+                            nan += 1;
+                            return 0.0;
+                        }
+                        let e = lamp.irradiance[c];
+                        let g = fv[c] as f64 * f[c] as f64 * e * cos_i * global[c] / PI;
+                        ((l[c] as f64 - g) / e) as f32
+                    })
+                })
+                .collect();
+            let sample = LrfSample {
+                light: f32v(lamp.light_dir),
+                view: wo,
+            };
+            Ok((
+                sample,
+                Texture {
+                    width: w,
+                    height: h,
+                    data: out,
+                },
+                nan,
+            ))
+        })
+        .collect::<Result<_, _>>()?;
+    let nan: usize = lrf.iter().map(|x| x.2).sum();
+    if nan > 0 {
+        notes.push(format!(
+            "LRF: {nan} texel-channels were not valid in the lamp images; set to 0"
+        ));
+    }
+    let (samples, maps) = lrf.into_iter().map(|x| (x.0, x.1)).unzip();
+    timings.lrf = t0.elapsed().as_secs_f64();
+
+    let model = MaterialModel {
+        dipole,
+        entrance,
+        exiting,
+        lrf: LocalReflectance { samples, maps },
+        texel_mm: grid.texel_mm as f32,
+        width: grid.width,
+        height: grid.height,
+        diagnostics: Some(FitDiagnostics {
+            channels,
+            entrance_samples,
+            notes,
+        }),
+    };
+    model.check(capture_dir)?;
+    Ok((model, timings))
+}
+
+/// f(w_i) per channel at the measured laser directions, then resampled to the
+/// regular (θ, φ) table by the 4 nearest measured directions (inverse-square
+/// angular weights): the paper's interpolation from the four nearest laser
+/// directions. Returns the table and the measured samples.
+#[allow(clippy::type_complexity)]
+fn fit_entrance(
+    data: &Rectified,
+    opts: &FitOptions,
+    notes: &mut Vec<String>,
+) -> Result<(EntranceFunction, Vec<([f32; 3], [f32; 3])>), ModelError> {
+    let is_vertical = |d: [f64; 3]| d[2] > (2f64).to_radians().cos();
+    // Mean per-stripe sum Σ_p L / flux, keyed by (light, view, channel).
+    let mut groups: BTreeMap<([i64; 3], [i64; 3], u8), (f64, usize, [f64; 3])> = BTreeMap::new();
+    let pass1: Vec<&StripeEntry> = data.index.stripe.iter().filter(|s| s.pass == 1).collect();
+    if pass1.is_empty() {
+        notes.push(
+            "no pass-1 images: entrance function set to the smooth-surface Fresnel ratio".into(),
+        );
+        return Ok((
+            EntranceFunction::fresnel(opts.eta, opts.n_theta),
+            Vec::new(),
+        ));
+    }
+    let has_vertical_pass1 = pass1.iter().any(|s| is_vertical(s.light_dir));
+    let used: Vec<&StripeEntry> = data
+        .index
+        .stripe
+        .iter()
+        .filter(|s| s.pass == 1 || (!has_vertical_pass1 && s.pass == 2))
+        .collect();
+    let sums: Vec<f64> = used
+        .par_iter()
+        .map(|s| -> Result<f64, ModelError> {
+            let img = data.read_image(&s.file)?;
+            let c = s.channel as usize;
+            let sum: f64 = img
+                .data
+                .iter()
+                .map(|v| v[c] as f64)
+                .filter(|v| v.is_finite())
+                .sum();
+            Ok(sum / s.flux_per_mm)
+        })
+        .collect::<Result<_, _>>()?;
+    for (s, sum) in used.iter().zip(sums) {
+        let light = if is_vertical(s.light_dir) {
+            [0, 0, (1.0 / SAME_DIR) as i64]
+        } else {
+            dir_key(s.light_dir)
+        };
+        let e = groups
+            .entry((light, dir_key(s.view_dir), s.channel))
+            .or_insert((0.0, 0, s.light_dir));
+        e.0 += sum;
+        e.1 += 1;
+    }
+    let vertical = [0, 0, (1.0 / SAME_DIR) as i64];
+    let mut lights: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
+    for (k, v) in &groups {
+        lights.entry(k.0).or_insert(v.2);
+    }
+    let mut samples: Vec<([f32; 3], [f32; 3])> = vec![([0.0, 0.0, 1.0], [1.0; 3])];
+    for (lk, ld) in &lights {
+        if *lk == vertical {
+            continue;
+        }
+        let mut value = [f32::NAN; 3];
+        for c in 0..3u8 {
+            let (mut num, mut den, mut common) = (0.0, 0.0, 0);
+            for ((l, v, ch), g) in &groups {
+                if l == lk && *ch == c {
+                    if let Some(r) = groups.get(&(vertical, *v, c)) {
+                        num += g.0 / g.1 as f64;
+                        den += r.0 / r.1 as f64;
+                        common += 1;
+                    }
+                }
+            }
+            if common == 0 {
+                // No shared views: compare the view-averaged sums.
+                let mean = |key: [i64; 3]| {
+                    let v: Vec<f64> = groups
+                        .iter()
+                        .filter(|((l, _, ch), _)| *l == key && *ch == c)
+                        .map(|(_, g)| g.0 / g.1 as f64)
+                        .collect();
+                    if v.is_empty() {
+                        f64::NAN
+                    } else {
+                        v.iter().sum::<f64>() / v.len() as f64
+                    }
+                };
+                num = mean(*lk);
+                den = mean(vertical);
+            }
+            value[c as usize] = (num / den) as f32;
+        }
+        if value.iter().any(|v| !v.is_finite()) {
+            return Err(ModelError::Fit(format!(
+                "entrance function: light direction {ld:?} lacks a vertical reference in some channel"
+            )));
+        }
+        samples.push((f32v(*ld), value));
+    }
+    let n_theta = opts.n_theta.max(2);
+    let n_phi = opts.n_phi.max(1);
+    let mut table = EntranceFunction {
+        n_theta,
+        n_phi,
+        values: vec![[0.0; 3]; n_theta * n_phi],
+    };
+    for k in 0..n_theta {
+        for m in 0..n_phi {
+            let (t, p) = (table.theta(k), table.phi(m));
+            let d = [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()];
+            let mut near: Vec<(f32, [f32; 3])> = samples
+                .iter()
+                .map(|(s, v)| {
+                    (
+                        (s[0] * d[0] + s[1] * d[1] + s[2] * d[2])
+                            .clamp(-1.0, 1.0)
+                            .acos(),
+                        *v,
+                    )
+                })
+                .collect();
+            near.sort_by(|a, b| a.0.total_cmp(&b.0));
+            near.truncate(4);
+            table.values[k * n_phi + m] = if near[0].0 < 1e-4 {
+                near[0].1
+            } else {
+                let ws: Vec<f32> = near.iter().map(|x| 1.0 / (x.0 * x.0)).collect();
+                let sum: f32 = ws.iter().sum();
+                std::array::from_fn(|c| {
+                    near.iter().zip(&ws).map(|(x, w)| x.1[c] * w).sum::<f32>() / sum
+                })
+            };
+        }
+    }
+    Ok((table, samples))
+}
