@@ -280,6 +280,7 @@ impl CaptureDir {
                 .map_err(io_err(&jpath))?;
         }
         dir.verify_frames()?;
+        remove_temporaries(&root.join("frames"))?;
         Ok(dir)
     }
 
@@ -453,6 +454,22 @@ impl CaptureDir {
             .and_then(|_| self.journal.sync_data())
             .map_err(io_err(&path))
     }
+}
+
+/// Deletes `*.tmp` files a crash left mid-write (never a journaled frame).
+fn remove_temporaries(dir: &Path) -> Result<(), DirError> {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for e in entries {
+        let path = e.map_err(io_err(dir))?.path();
+        if path.is_dir() {
+            remove_temporaries(&path)?;
+        } else if path.extension().is_some_and(|x| x == "tmp") {
+            fs::remove_file(&path).map_err(io_err(&path))?;
+        }
+    }
+    Ok(())
 }
 
 fn lock(journal: &File, root: &Path) -> Result<(), DirError> {

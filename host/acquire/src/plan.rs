@@ -650,6 +650,8 @@ pub struct PlanSummary {
     pub frames: usize,
     pub triggers: usize,
     pub frame_size: (u32, u32),
+    /// Camera frame rate the estimate assumes, Hz.
+    pub frame_rate_hz: f64,
     pub disk_bytes: u64,
     pub timing: Timing,
     pub estimate_s: f64,
@@ -671,6 +673,7 @@ impl Plan {
             frames: self.frames(),
             triggers: self.triggers(),
             frame_size: self.config.frame_size(),
+            frame_rate_hz: NOMINAL_GEOMETRY.sensor.frame_rate,
             disk_bytes: self.disk_bytes(),
             timing,
             estimate_s: timing.estimate_s(),
