@@ -25,6 +25,12 @@ pub enum Command {
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// HDR-merge and rectify a capture directory into CAPTURE_DIR/rectified/.
     Rectify(cmd::rectify::RectifyArgs),
+    /// Talk to the rig's MCU: ping, status, home, move, galvo, laser, lamps, trigger, estop, clear.
+    Rig(cmd::rig::RigArgs),
+    /// Flash the firmware to the Nucleo-F446RE with probe-rs.
+    Flash(cmd::flash::FlashArgs),
+    /// The simulated world (`--pty`: an emulated rig on a pseudo-terminal).
+    Sim(cmd::sim::SimArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -32,5 +38,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         // One arm per command.
         Command::Calibrate(args) => cmd::calibrate::run(args),
         Command::Rectify(args) => cmd::rectify::run(args),
+        Command::Rig(args) => cmd::rig::run(args),
+        Command::Flash(args) => cmd::flash::run(args),
+        Command::Sim(args) => cmd::sim::run(args),
     }
 }

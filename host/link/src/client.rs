@@ -279,11 +279,32 @@ impl Link {
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .take();
-        drop(old);
+        // Wait until the old tasks are gone: they own the device, and a
+        // serial port is opened exclusively.
+        if let Some(mut old) = old {
+            let tasks = std::mem::take(&mut old.tasks);
+            drop(old);
+            for t in tasks {
+                t.abort();
+                let _ = t.await;
+            }
+        }
         *self.inner.seq.lock().unwrap_or_else(|p| p.into_inner()) = self.inner.seq_hint();
         let stream = connector().await?;
         self.start(stream);
         self.identify().await
+    }
+
+    /// Stop the link's tasks and close the stream; later calls fail with
+    /// `Disconnected` until `reconnect()`.
+    pub fn close(&self) {
+        let session = self
+            .inner
+            .session
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        drop(session);
     }
 
     /// Send one command and wait for the MCU's answer.

@@ -150,7 +150,12 @@ impl Engine {
 
     fn die(&mut self, reason: String) {
         if self.dead.is_none() {
-            tracing::warn!("link lost: {reason}");
+            // "reader stopped" is the runtime shutting down, not news.
+            if reason == "reader stopped" {
+                tracing::debug!("link lost: {reason}");
+            } else {
+                tracing::warn!("link lost: {reason}");
+            }
             let _ = self.events.send(LinkEvent::Disconnected {
                 reason: reason.clone(),
             });

@@ -1,3 +1,7 @@
 //! One module per `qhm` subcommand.
 pub mod calibrate;
 pub mod rectify;
+pub mod flash;
+pub mod rig;
+pub mod sim;
+pub mod simpty;
