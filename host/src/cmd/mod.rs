@@ -5,3 +5,4 @@ pub mod flash;
 pub mod rig;
 pub mod sim;
 pub mod simpty;
+pub mod render;
