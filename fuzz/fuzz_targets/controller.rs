@@ -3,6 +3,8 @@
 //! invariant (issue 2, DESIGN.md principle 4): the laser never emits unless
 //! the interlock is closed, the e-stop released, a Heartbeat was executed
 //! within 250 ms and no fault is latched, and never two colours at once.
+//! Also: homed axes stay inside their soft limits, and no step is emitted
+//! while the e-stop is pressed or its fault latched.
 //! Any violation panics, which libFuzzer reports with the reproducing input.
 //!
 //! The harness mirrors the controller's frame decoding and sequencing on the
@@ -10,17 +12,20 @@
 //! the fuzzer smuggled in through raw link bytes.
 #![no_main]
 
+use firmware::axis::AxisParams;
 use firmware::controller::HEARTBEAT_TIMEOUT_US;
 use firmware::{Controller, Inputs, Io};
 use libfuzzer_sys::fuzz_target;
 use protocol::seq::{Admission, CommandSequencer};
 use protocol::{
-    Axis, Command, FrameDecoder, HostFrame, LaserColour, MAX_FRAME, MoveTarget, Sweep, encode_frame,
+    Axis, Command, FaultCause, FrameDecoder, HostFrame, LaserColour, MAX_FRAME, MoveTarget, Sweep,
+    encode_frame,
 };
 
 #[derive(Default)]
 struct Rig {
     pos: [i64; 2],
+    steps: u64,
     lasers: [bool; 3],
     inputs: Option<Inputs>,
 }
@@ -28,6 +33,7 @@ struct Rig {
 impl Io for Rig {
     fn step(&mut self, axis: Axis, forward: bool) {
         self.pos[axis.index()] += if forward { 1 } else { -1 };
+        self.steps += 1;
     }
     fn set_motor_enable(&mut self, _: Axis, _: bool) {}
     fn set_galvo(&mut self, _: u16) {}
@@ -92,8 +98,14 @@ impl Harness {
         }
         let mut buf = [0u8; MAX_FRAME + 1];
         // leading delimiter: flush whatever raw bytes left in the decoder
-        let n = encode_frame(&HostFrame { seq: self.seq, command }, &mut buf[1..])
-            .expect("commands fit a frame");
+        let n = encode_frame(
+            &HostFrame {
+                seq: self.seq,
+                command,
+            },
+            &mut buf[1..],
+        )
+        .expect("commands fit a frame");
         self.feed(&buf[..n + 1].to_vec());
     }
 
@@ -112,9 +124,31 @@ impl Harness {
             let fresh = self
                 .last_hb
                 .is_some_and(|t| self.now - t <= HEARTBEAT_TIMEOUT_US);
-            assert!(fresh, "laser on without a fresh heartbeat at {} us", self.now);
+            assert!(
+                fresh,
+                "laser on without a fresh heartbeat at {} us",
+                self.now
+            );
         }
         assert_eq!(self.c.laser_emitting(), self.rig.lasers.iter().any(|&l| l));
+        let status = self.c.status(self.now);
+        for (i, mech) in [hardware::TURNTABLE, hardware::LIGHT_ARC]
+            .into_iter()
+            .enumerate()
+        {
+            let p = AxisParams::of(mech);
+            let a = status.axes[i];
+            assert!(
+                !a.homed || (p.soft_min..=p.soft_max).contains(&a.position_steps),
+                "homed axis {i} at {} beyond its soft limits",
+                a.position_steps
+            );
+        }
+    }
+
+    fn estopped(&self) -> bool {
+        self.rig.inputs.is_some_and(|i| i.estop_pressed)
+            || self.c.fault() == Some(FaultCause::EStop)
     }
 }
 
@@ -224,6 +258,7 @@ fuzz_target!(|data: &[u8]| {
         if s.0.is_empty() {
             break;
         }
+        let (estopped, steps) = (h.estopped(), h.rig.steps);
         match s.u8() % 8 {
             0 | 1 => {
                 let n = s.u8() as usize % 64;
@@ -261,5 +296,6 @@ fuzz_target!(|data: &[u8]| {
             }
         }
         h.poll();
+        assert!(!estopped || h.rig.steps == steps, "steps after an e-stop");
     }
 });
