@@ -33,7 +33,11 @@ fn save(
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let q = SimQuality::by_name(&std::env::args().nth(1).unwrap_or("preview".into()))?;
+    let mut q = SimQuality::by_name(&std::env::args().nth(1).unwrap_or("preview".into()))?;
+    if let Some(p) = std::env::args().nth(2).and_then(|s| s.parse().ok()) {
+        q.laser_photons = p;
+        q.lamp_photons = p;
+    }
     let rig = RigTruth::perturbed(1);
     let laser = |ch| Illumination {
         laser: Some(LaserOn {
