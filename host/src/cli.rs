@@ -21,6 +21,8 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     // One variant per command; keep one line each so parallel edits do not collide.
+    /// Capture: `plan` (frames, disk, rig time vs lower bound), `run` (into a resumable capture directory).
+    Capture(cmd::capture::CaptureArgs),
     /// Render a mesh made of a material model (EXR/PNG); export pbrt-v4/Mitsuba 3 snippets.
     Render(cmd::render::RenderArgs),
     /// Calibrate the rig (response, colour, geometry, lamps, laser, all) into a calibration file.
@@ -38,6 +40,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         // One arm per command.
+        Command::Capture(args) => cmd::capture::run(args),
         Command::Render(args) => cmd::render::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
         Command::Rectify(args) => cmd::rectify::run(args),

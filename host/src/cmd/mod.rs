@@ -1,4 +1,5 @@
 //! One module per `qhm` subcommand.
+pub mod capture;
 pub mod calibrate;
 pub mod rectify;
 pub mod flash;

@@ -1,0 +1,337 @@
+//! `qhm capture plan|run`: the capture plan of paper Fig. 4 (frames, disk,
+//! rig time against a mechanical lower bound) and its execution on the
+//! built-in simulated rig (`--sim`) or a real rig (`--port` + GenICam cameras),
+//! into a crash-safe, resumable capture directory.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use qhm_acquire::plan::Step;
+use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
+use qhm_acquire::{
+    Camera, CaptureDir, ConsoleOperator, DirError, Manifest, Operator, Plan, PlanConfig, Progress,
+    RunOptions, Scale, SimRig, run_capture, safe_off,
+};
+
+#[derive(Args, Debug)]
+pub struct CaptureArgs {
+    #[command(subcommand)]
+    pub action: CaptureAction,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum CaptureAction {
+    /// Print the plan: frames per pass, disk, estimated rig time and its lower bound.
+    Plan {
+        /// Sampling density: ci, default or paper (Table 1).
+        #[arg(long, default_value = "default")]
+        scale: String,
+        /// Machine-readable JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Execute the plan into a capture directory.
+    Run(RunArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Use the built-in simulated rig and cameras.
+    #[arg(long, conflicts_with = "port")]
+    pub sim: bool,
+    /// Serial device of the rig's MCU (real rig; cameras through Aravis).
+    #[arg(long)]
+    pub port: Option<PathBuf>,
+    #[arg(long, default_value_t = DEFAULT_BAUD)]
+    pub baud: u32,
+    /// Real rig: camera on arc position N is GenICam device ID (repeat: 1=ID1 2=ID2 ...).
+    #[arg(long = "camera", value_name = "N=DEVICE")]
+    pub cameras: Vec<String>,
+    /// Sampling density: ci, default or paper.
+    #[arg(long, default_value = "default")]
+    pub scale: String,
+    /// Sample preset or TOML file (what the simulated rig measures; recorded in capture.toml).
+    #[arg(long, default_value = "two-material")]
+    pub sample: String,
+    /// Seed of the simulated world (rig errors, Monte Carlo, sensor noise).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Simulated rig: virtual seconds per wall second (default by scale).
+    #[arg(long)]
+    pub sim_speed: Option<f64>,
+    /// Capture directory.
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+    /// Continue the capture in OUT (after Ctrl-C, a crash, a disconnect).
+    #[arg(long)]
+    pub resume: bool,
+    /// Longest wait for one frame, seconds.
+    #[arg(long, default_value_t = 120.0)]
+    pub frame_timeout: f64,
+    /// No progress bars (logs and CI).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+pub fn run(args: CaptureArgs) -> Result<ExitCode> {
+    match args.action {
+        CaptureAction::Plan { scale, json } => plan(&scale, json),
+        CaptureAction::Run(a) => {
+            let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+            rt.block_on(run_cmd(a))
+        }
+    }
+}
+
+fn hms(s: f64) -> String {
+    let s = s.round() as u64;
+    format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+fn plan(scale: &str, json: bool) -> Result<ExitCode> {
+    let scale: Scale = scale.parse()?;
+    let plan = Plan::new(PlanConfig::for_scale(scale))?;
+    let s = plan.summary();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    let c = &plan.config;
+    let deg = |v: &[f64]| {
+        v.iter()
+            .map(|e| format!("{:.0}", e.to_degrees()))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let ms = |v: &[f64]| {
+        v.iter()
+            .map(|e| format!("{}", e * 1e3))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    println!("capture plan, scale {}", scale.name());
+    println!(
+        "  pass 1 (entrance):    clamp at {} deg x {} arc rotations x {} turntable x {} lasers x {} scan x {} exposures, cameras {:?}: {} frames",
+        deg(&c.clamp_elevations),
+        c.entrance_arc_rotations,
+        c.entrance_turntable,
+        c.laser_colours.len(),
+        c.scan_positions,
+        c.laser_exposures.len(),
+        c.entrance_cameras,
+        s.frames_per_pass[0]
+    );
+    println!(
+        "  pass 2 (exiting):     {} turntable (arc follows) x {} lasers x {} scan x {} exposures, cameras {:?}: {} frames",
+        c.exiting_turntable,
+        c.laser_colours.len(),
+        c.scan_positions,
+        c.laser_exposures.len(),
+        c.cameras,
+        s.frames_per_pass[1]
+    );
+    println!(
+        "  pass 3 (reflectance): {} arc rotations x {} turntable x lamps {:?} x {} exposures, cameras {:?}: {} frames",
+        c.reflectance_arc_rotations,
+        c.reflectance_turntable,
+        c.lamps,
+        c.lamp_exposures.len(),
+        c.cameras,
+        s.frames_per_pass[2]
+    );
+    println!(
+        "  exposures: laser {} ms, lamp {} ms; gain {} dB; frames {}x{} (binning {}); rectified {}^2",
+        ms(&c.laser_exposures),
+        ms(&c.lamp_exposures),
+        c.gain_db,
+        s.frame_size.0,
+        s.frame_size.1,
+        c.binning,
+        c.rectified_size
+    );
+    println!(
+        "  {} steps, {} triggers, {} frames, disk at most {:.2} GB",
+        s.steps,
+        s.triggers,
+        s.frames,
+        s.disk_bytes as f64 / 1e9
+    );
+    let t = &s.timing;
+    println!(
+        "  rig time estimate {} (homing {:.0} s, {} moves {:.0} s, exposures {:.0} s, switching {:.0} s, operator {:.0} s)",
+        hms(s.estimate_s),
+        t.homing_s,
+        t.moves,
+        t.motion_s,
+        t.exposure_s,
+        t.switching_s,
+        t.operator_s
+    );
+    println!(
+        "  lower bound       {} (exposures at {} Hz {:.0} s, unavoidable travel {:.1} s, operator {:.0} s); ratio {:.3}",
+        hms(s.lower_bound_s),
+        s.frame_rate_hz,
+        t.lower_exposure_s,
+        t.lower_motion_s,
+        t.lower_operator_s,
+        s.ratio
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Progress bars: frames done, with the ETA.
+struct Bars {
+    bar: ProgressBar,
+}
+
+impl Progress for Bars {
+    fn start(&mut self, total: usize, done: usize) {
+        self.bar.set_length(total as u64);
+        self.bar.set_position(done as u64);
+        self.bar.reset_eta();
+    }
+    fn frame(&mut self, step: &Step, done: usize) {
+        self.bar.set_position(done as u64);
+        self.bar
+            .set_message(format!("pass {} step {}", step.pass.number(), step.index));
+    }
+    fn note(&mut self, message: &str) {
+        self.bar.println(message);
+    }
+}
+
+async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
+    let scale: Scale = a.scale.parse()?;
+    if !(a.frame_timeout.is_finite() && a.frame_timeout > 0.0) {
+        bail!("--frame-timeout must be a positive number of seconds");
+    }
+    let plan = Plan::new(PlanConfig::for_scale(scale))?;
+    let rig_name = match (&a.port, a.sim) {
+        (_, true) => "sim".to_string(),
+        (Some(p), false) => format!("serial:{}", p.display()),
+        (None, false) => bail!("say where the rig is: --sim or --port DEVICE"),
+    };
+    let manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
+    // Refuse foreign, corrupt or mismatching directories before touching the rig.
+    let mut dir = if a.resume {
+        CaptureDir::open(&a.out, Some(&manifest))
+            .with_context(|| format!("cannot resume {}", a.out.display()))?
+    } else {
+        CaptureDir::create(&a.out, manifest).map_err(|e| match e {
+            DirError::Exists(_) => anyhow::anyhow!("{e}"),
+            e => anyhow::Error::new(e),
+        })?
+    };
+    if dir.is_complete() {
+        eprintln!(
+            "{}: capture already complete ({} frames)",
+            a.out.display(),
+            dir.frame_count()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    let mut opts = RunOptions {
+        frame_timeout: Duration::from_secs_f64(a.frame_timeout),
+        ..RunOptions::default()
+    };
+    // The simulated rig owns its world and cameras for the whole run.
+    let mut sim_rig: Option<SimRig> = None;
+    let mut real_cameras: Vec<Box<dyn Camera>> = Vec::new();
+    let (link, mut operator): (Link, Box<dyn Operator>) = if a.sim {
+        let mut cfg = qhm_acquire::SimRigConfig::new(&a.sample, scale, a.seed);
+        if let Some(s) = a.sim_speed {
+            if !(s.is_finite() && s > 0.0 && s <= 1000.0) {
+                bail!("--sim-speed must be in (0, 1000]");
+            }
+            cfg.speed = s;
+        }
+        opts.time_scale = cfg.speed;
+        let rig = SimRig::start_with(cfg)
+            .await
+            .context("starting the simulated rig")?;
+        let out = (
+            rig.link.clone(),
+            Box::new(rig.handle.operator()) as Box<dyn Operator>,
+        );
+        sim_rig = Some(rig);
+        out
+    } else {
+        let port = a
+            .port
+            .as_ref()
+            .context("--port is required without --sim")?;
+        real_cameras = qhm_acquire::open_genicam_cameras(&a.cameras).context(
+            "opening the cameras (give --camera N=DEVICE for each camera the plan uses)",
+        )?;
+        let link = Link::open_serial(&port.to_string_lossy(), a.baud, LinkConfig::default())
+            .await
+            .with_context(|| format!("opening the rig on {}", port.display()))?;
+        (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
+    };
+    let cameras: &mut [Box<dyn Camera>] = match sim_rig.as_mut() {
+        Some(r) => &mut r.cameras,
+        None => &mut real_cameras,
+    };
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(0)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} frames  ETA {eta_precise}  {msg}",
+        )
+        .expect("static template")
+        .progress_chars("=> "),
+    );
+    let mut bars = Bars { bar: bar.clone() };
+    let run = run_capture(
+        &link,
+        cameras,
+        operator.as_mut(),
+        &mut dir,
+        &opts,
+        &mut bars,
+    );
+    let outcome = tokio::select! {
+        r = run => Some(r),
+        _ = tokio::signal::ctrl_c() => None,
+    };
+    bar.finish_and_clear();
+    match outcome {
+        None => {
+            safe_off(&link).await;
+            eprintln!(
+                "interrupted: {} of {} frames are safely on disk; continue with `qhm capture run --resume -o {}`",
+                dir.frame_count(),
+                plan.frames(),
+                a.out.display()
+            );
+            Ok(ExitCode::from(130))
+        }
+        Some(Err(e)) => Err(anyhow::Error::new(e).context(format!(
+            "capture stopped after {} of {} frames; continue with `qhm capture run --resume -o {}`",
+            dir.frame_count(),
+            plan.frames(),
+            a.out.display()
+        ))),
+        Some(Ok(report)) => {
+            eprintln!(
+                "capture {}: {} frames written now, {} total, {} MCU resets recovered",
+                if report.complete {
+                    "complete"
+                } else {
+                    "paused"
+                },
+                report.frames_written,
+                dir.frame_count(),
+                report.resets_recovered
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
