@@ -85,7 +85,10 @@ pub fn rectify_at_height(
     scale: &[f32],
     plane_z: f64,
 ) -> ImageF {
-    let to_world = sample_to_world(axis, theta);
+    // Sample -> camera in one matrix, computed once (not per texel).
+    let r_cs = cam.rotation_matrix() * sample_to_world(axis, theta);
+    let t = DVec3::from(cam.translation);
+    let k = cam.intrinsics;
     let ch = img.channels;
     let mut out = ImageF::zeros(grid.width, grid.height, ch);
     out.data
@@ -94,8 +97,9 @@ pub fn rectify_at_height(
         .for_each(|(j, row)| {
             for i in 0..grid.width {
                 let p = grid.texel_centre(i, j);
-                let pw = to_world * DVec3::new(p.x, p.y, plane_z);
-                let px = cam.project(pw);
+                let pc = r_cs * DVec3::new(p.x, p.y, plane_z) + t;
+                let px =
+                    (pc.z > 1e-9).then(|| k.distort_to_pixel(DVec2::new(pc.x / pc.z, pc.y / pc.z)));
                 for c in 0..ch {
                     row[i * ch + c] = match px {
                         Some(q) => img.bilinear(q.x, q.y, c) * scale.get(c).copied().unwrap_or(1.0),

@@ -458,9 +458,21 @@ impl SimCalibrator {
         let patch = 9.0;
         let grid = Grid::centred(54, 1.0);
         let mut means = Vec::new();
+        let mut measured = Vec::new();
         for (&k, frames) in self.cameras.iter().zip(&brackets) {
+            let Ok(cam) = self.cam_at_binning(cal, k) else {
+                rows.push(Row {
+                    quantity: format!("camera {k} colour: no geometry"),
+                    recovered: f64::NAN,
+                    truth: f64::NAN,
+                    error: f64::NAN,
+                    target: "calibrated".into(),
+                    ok: false,
+                });
+                continue;
+            };
+            measured.push(k);
             let hdr = self.merged(cal, k, frames, &exposures)?;
-            let cam = self.cam_at_binning(cal, k)?;
             let rect = rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &[1.0; 3]);
             // Mean of the central half of each of the 24 patches (4 rows x 6 columns).
             let mut m = Vec::new();
@@ -493,10 +505,13 @@ impl SimCalibrator {
             }
             means.push(m);
         }
-        let reference = self.cameras.len() - 1;
+        let reference = measured
+            .len()
+            .checked_sub(1)
+            .ok_or_else(|| Error::Input("no camera has geometry".into()))?;
         let gains = photometric::colour_gains(&means, reference)?;
-        let kref = self.cameras[reference];
-        for (&k, g) in self.cameras.iter().zip(&gains) {
+        let kref = measured[reference];
+        for (&k, g) in measured.iter().zip(&gains) {
             let mut worst = 0.0f64;
             for c in 0..3 {
                 let truth =
@@ -614,9 +629,9 @@ impl SimCalibrator {
         };
         let g = hardware::NOMINAL_GEOMETRY;
         let mut angles = Vec::new();
-        // Two-height target turned by 90 deg: the stripe (along world y) crosses the step edge.
+        // Two-height target (y < 0 low, y >= 0 high): the stripe along y at arc 0 crosses the step.
         let mut world = self.world("two-height")?;
-        let theta = PI / 2.0;
+        let theta = 0.0;
         for &elev in &g.laser.positions {
             world.set_laser_mount(elev);
             let illum = Illumination {
@@ -646,11 +661,11 @@ impl SimCalibrator {
                     &[gain[0] as f32, 0.0, 0.0],
                     z,
                 );
-                // Keep only this step's half of the target (sample x < 0 low, x >= 0 high), away from the edge.
+                // Keep only this step's half of the target (sample y < 0 low, y >= 0 high), away from the edge.
                 for j in 0..grid.height {
                     for i in 0..grid.width {
                         let p = grid.texel_centre(i, j);
-                        let mine = if keep_low { p.x < -2.0 } else { p.x > 2.0 };
+                        let mine = if keep_low { p.y < -2.0 } else { p.y > 2.0 };
                         if !mine {
                             rect.set(i, j, 0, f32::NAN);
                         }
