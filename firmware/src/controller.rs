@@ -15,7 +15,7 @@
 //! decelerate. E-stop (input or command) stops everything at once. A fault
 //! stays latched until `ClearFault`, refused while its cause persists.
 
-use crate::axis::{AxisOutcome, AxisState};
+use crate::axis::{AxisOutcome, AxisParams, AxisState};
 use crate::galvo::{self, DAC_MAX, GALVO_MAX_URAD, SweepAction, SweepRun};
 use crate::io::{Inputs, Io};
 use crate::tx::{TX_CAPACITY, TxQueue};
@@ -242,9 +242,7 @@ impl Controller {
 
     /// The constants advertised in `Identity`.
     pub fn limits() -> Limits {
-        let [t, a] = [AxisState::new(Axis::Turntable, TURNTABLE).p, {
-            AxisState::new(Axis::LightArc, LIGHT_ARC).p
-        }];
+        let (t, a) = (AxisParams::of(TURNTABLE), AxisParams::of(LIGHT_ARC));
         let urad = |x: f64| (x * 1e6) as i64;
         Limits {
             steps_per_rev: [t.steps_per_rev, a.steps_per_rev],
