@@ -372,3 +372,94 @@ async fn disconnect_is_a_clear_error() {
         Err(LinkError::ReconnectUnsupported)
     ));
 }
+
+/// A fake MCU that answers every `Identify` with `identity` and ignores
+/// everything else: enough to test the handshake checks.
+fn fake_mcu(identity: protocol::Identity) -> tokio::io::DuplexStream {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let (host, mut mcu) = tokio::io::duplex(4096);
+    tokio::spawn(async move {
+        let mut dec = protocol::FrameDecoder::new();
+        let mut buf = [0u8; 256];
+        loop {
+            let n = match mcu.read(&mut buf).await {
+                Ok(0) | Err(_) => return,
+                Ok(n) => n,
+            };
+            let mut replies = Vec::new();
+            dec.push_slice::<protocol::HostFrame>(&buf[..n], |r| {
+                if let Ok(f) = r
+                    && f.command == Command::Identify
+                {
+                    replies.push(protocol::McuFrame::Ack {
+                        seq: f.seq,
+                        result: Ok(protocol::Reply::Identity(identity.clone())),
+                    });
+                }
+            });
+            for r in replies {
+                let mut out = [0u8; protocol::MAX_FRAME];
+                let n = protocol::encode_frame(&r, &mut out).unwrap();
+                if mcu.write_all(&out[..n]).await.is_err() {
+                    return;
+                }
+            }
+        }
+    });
+    host
+}
+
+fn identity(protocol_version: u16, schema_hash: u32) -> protocol::Identity {
+    protocol::Identity {
+        protocol_version,
+        schema_hash,
+        firmware_version: [0, 1, 0],
+        board: "fake".try_into().unwrap(),
+        boot_id: 42,
+        limits: firmware::Controller::limits(),
+    }
+}
+
+#[tokio::test]
+async fn handshake_refuses_another_protocol_version_or_schema() {
+    let cfg = LinkConfig::scaled(10.0);
+    let stream = fake_mcu(identity(
+        protocol::PROTOCOL_VERSION + 1,
+        protocol::SCHEMA_HASH,
+    ));
+    match Link::open_stream(Box::new(stream), cfg.clone()).await {
+        Err(e @ LinkError::VersionMismatch { .. }) => {
+            assert!(e.to_string().contains("protocol version"), "{e}")
+        }
+        Err(e) => panic!("expected VersionMismatch, got {e}"),
+        Ok(_) => panic!("accepted a peer with another protocol version"),
+    }
+    let stream = fake_mcu(identity(
+        protocol::PROTOCOL_VERSION,
+        protocol::SCHEMA_HASH ^ 1,
+    ));
+    assert!(matches!(
+        Link::open_stream(Box::new(stream), cfg).await,
+        Err(LinkError::SchemaMismatch { .. })
+    ));
+}
+
+#[tokio::test]
+async fn a_silent_peer_times_out_after_the_configured_tries() {
+    let (host, _mcu) = tokio::io::duplex(4096);
+    let cfg = LinkConfig {
+        tries: 4,
+        ..LinkConfig::scaled(100.0)
+    };
+    let t = std::time::Instant::now();
+    match Link::open_stream(Box::new(host), cfg).await {
+        Err(LinkError::Timeout { command, tries }) => {
+            assert_eq!(command, Command::Identify);
+            assert_eq!(tries, 4);
+        }
+        Err(e) => panic!("expected Timeout, got {e}"),
+        Ok(_) => panic!("handshake with nobody"),
+    }
+    // 2 + 4 + 8 + 16 ms of back-off, far below a second.
+    assert!(t.elapsed() < Duration::from_secs(2));
+}

@@ -6,6 +6,8 @@
 //! state the last commands asked for.
 
 use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
@@ -29,11 +31,11 @@ struct Duplicator<S> {
     pending: Vec<u8>,
     /// A write to repeat once the original completed.
     repeat: Option<Vec<u8>>,
-    pub duplicated: u64,
+    duplicated: Arc<AtomicU64>,
 }
 
 impl<S> Duplicator<S> {
-    fn new(inner: S, p: f64, seed: u64) -> Self {
+    fn new(inner: S, p: f64, seed: u64, duplicated: Arc<AtomicU64>) -> Self {
         Self {
             inner,
             p,
@@ -41,7 +43,7 @@ impl<S> Duplicator<S> {
             partial: Vec::new(),
             pending: Vec::new(),
             repeat: None,
-            duplicated: 0,
+            duplicated,
         }
     }
 
@@ -80,7 +82,7 @@ impl<S: AsyncRead + Unpin> AsyncRead for Duplicator<S> {
                         this.pending.extend_from_slice(&frame);
                         if frame.len() > 1 && this.chance() {
                             this.pending.extend_from_slice(&frame);
-                            this.duplicated += 1;
+                            this.duplicated.fetch_add(1, Ordering::Relaxed);
                         }
                     }
                 }
@@ -129,7 +131,7 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for Duplicator<S> {
             && this.chance()
         {
             this.repeat = Some(buf.to_vec());
-            this.duplicated += 1;
+            this.duplicated.fetch_add(1, Ordering::Relaxed);
         }
         r
     }
@@ -196,7 +198,8 @@ async fn ten_thousand_commands_exactly_once_over_a_faulty_line() {
     cfg.link.baud = 0;
     let (stream, rig) = spawn_in_process(&cfg).unwrap();
     let mut triggers_seen = rig.subscribe_triggers();
-    let stream = Duplicator::new(stream, 0.01, 99);
+    let duplicated = Arc::new(AtomicU64::new(0));
+    let stream = Duplicator::new(stream, 0.01, 99, duplicated.clone());
     let config = LinkConfig {
         tries: 30,
         ..LinkConfig::scaled(SPEED)
@@ -256,14 +259,17 @@ async fn ten_thousand_commands_exactly_once_over_a_faulty_line() {
     let stats = link.stats();
     let (wire_up, wire_down) = rig.with(|p| p.wire_stats());
     eprintln!(
-        "{COMMANDS} commands in {:.1} s; link {stats:?}; wire up {wire_up:?} down {wire_down:?}",
-        elapsed.as_secs_f64()
+        "{COMMANDS} commands in {:.1} s; {} frames duplicated; link {stats:?}; wire up {wire_up:?} down {wire_down:?}",
+        elapsed.as_secs_f64(),
+        duplicated.load(Ordering::Relaxed)
     );
 
     // The faults really happened, and were survived.
     assert!(stats.retransmissions > 100, "{stats:?}");
     assert!(stats.bad_frames > 10, "{stats:?}");
     assert_eq!(stats.timeouts, 0);
+    let duplicated = duplicated.load(Ordering::Relaxed);
+    assert!(duplicated > 100, "{duplicated} frames duplicated");
     assert_eq!(status.fault, None::<FaultCause>, "no fault latched");
 
     // Final state = the last command of each kind.
