@@ -35,6 +35,12 @@ pub enum Command {
     Flash(cmd::flash::FlashArgs),
     /// The simulated world (`--pty`: an emulated rig on a pseudo-terminal).
     Sim(cmd::sim::SimArgs),
+    /// Fit a' and s'_t to a laser-stripe profile CSV (distance_mm,intensity_per_mm).
+    FitProfile(cmd::fit::FitProfileArgs),
+    /// Fit the material model of a rectified capture: qhm fit CAPTURE_DIR -o MODEL_DIR.
+    Fit(cmd::fit::FitArgs),
+    /// Plots and an HTML page of a material model and its fit.
+    Report(cmd::report::ReportArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -47,5 +53,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Rig(args) => cmd::rig::run(args),
         Command::Flash(args) => cmd::flash::run(args),
         Command::Sim(args) => cmd::sim::run(args),
+        Command::FitProfile(args) => cmd::fit::run_profile(args),
+        Command::Fit(args) => cmd::fit::run_fit(args),
+        Command::Report(args) => cmd::report::run(args),
     }
 }

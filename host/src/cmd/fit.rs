@@ -1,0 +1,162 @@
+//! `qhm fit-profile`: fit a' and s'_t to a laser-stripe profile from any
+//! source, and `qhm fit`: fit the whole material model from a rectified
+//! capture (qhm_model::fit).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use clap::Args;
+use qhm_model::dipole::DEFAULT_ETA;
+use qhm_model::{Profile, fit_profile};
+
+#[derive(Args, Debug)]
+pub struct FitProfileArgs {
+    /// CSV with header `distance_mm,intensity_per_mm`: exitance at distance d
+    /// from a straight stripe per unit incident flux per mm of stripe.
+    pub profile: PathBuf,
+    /// Total diffuse reflectance R of the sample, in (0, 1].
+    #[arg(long)]
+    pub reflectance: f64,
+    /// Relative index of refraction of the dipole.
+    #[arg(long, default_value_t = DEFAULT_ETA)]
+    pub eta: f64,
+    /// Distance range MIN:MAX in mm (default: automatic, printed).
+    #[arg(long, value_parser = parse_range)]
+    pub range: Option<(f64, f64)>,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn parse_range(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("`{s}` is not MIN:MAX (mm)"))?;
+    let num = |x: &str| -> Result<f64, String> {
+        x.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .ok_or_else(|| format!("`{x}` is not a distance in mm"))
+    };
+    let (lo, hi) = (num(a)?, num(b)?);
+    if hi <= lo {
+        return Err(format!("MAX {hi} must exceed MIN {lo}"));
+    }
+    Ok((lo, hi))
+}
+
+pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
+    let profile = Profile::read_csv(&args.profile)?;
+    let fit = fit_profile(&profile, args.reflectance, args.eta, args.range)
+        .with_context(|| format!("fitting {}", args.profile.display()))?;
+    if args.json {
+        let v = serde_json::json!({
+            "alpha_prime": fit.alpha_prime,
+            "sigma_t_prime": fit.sigma_t_prime,
+            "sigma_s_prime": fit.sigma_s_prime,
+            "sigma_a": fit.sigma_a,
+            "residual": fit.residual,
+            "range_mm": fit.range_mm,
+            "auto_range": fit.auto_range,
+        });
+        println!("{v}");
+    } else {
+        let how = if fit.auto_range { "automatic" } else { "given" };
+        println!(
+            "range         {:.4}:{:.4} mm ({how}, {} points)",
+            fit.range_mm[0], fit.range_mm[1], fit.points
+        );
+        println!("alpha_prime   {:.6}", fit.alpha_prime);
+        println!("sigma_t_prime {:.6} mm^-1", fit.sigma_t_prime);
+        println!("sigma_s_prime {:.6} mm^-1", fit.sigma_s_prime);
+        println!("sigma_a       {:.6} mm^-1", fit.sigma_a);
+        println!("residual      {:.3e} (relative RMS)", fit.residual);
+    }
+    if fit.sigma_t_prime >= qhm_model::dipole::SIGMA_T_PRIME_MAX * 0.999 {
+        bail!("s'_t hit the end of the search interval (10 mm^-1): the profile does not fit a dipole in range");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[derive(Args, Debug)]
+pub struct FitArgs {
+    /// Capture directory holding `rectified/index.toml`.
+    pub capture_dir: PathBuf,
+    /// Model directory to write (docs/model-format.md).
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+    /// Relative index of refraction of the dipole.
+    #[arg(long, default_value_t = DEFAULT_ETA)]
+    pub eta: f64,
+    /// Distance range MIN:MAX in mm for the s'_t fit (default: automatic per channel).
+    #[arg(long, value_parser = parse_range)]
+    pub range: Option<(f64, f64)>,
+    /// Compress the LRF to this many PCA components (default: uncompressed).
+    #[arg(long)]
+    pub lrf_components: Option<usize>,
+}
+
+pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
+    let opts = qhm_model::fit::FitOptions {
+        eta: args.eta,
+        range: args.range,
+        ..Default::default()
+    };
+    let t = std::time::Instant::now();
+    let (model, timings) = qhm_model::fit::fit_capture(&args.capture_dir, &opts)
+        .with_context(|| format!("fitting {}", args.capture_dir.display()))?;
+    let report = model
+        .save_with(
+            &args.output,
+            &qhm_model::SaveOptions {
+                lrf_components: args.lrf_components,
+            },
+        )
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let p = &model.dipole;
+    println!("channel  R        a'        s'_t     s'_s     s_a       range (mm)");
+    if let Some(d) = &model.diagnostics {
+        for ch in &d.channels {
+            let c = ch.channel;
+            println!(
+                "{c}        {:.5}  {:.6}  {:.4}   {:.4}   {:.5}   {:.2}:{:.2}",
+                ch.reflectance,
+                p.alpha_prime[c],
+                p.sigma_t_prime[c],
+                p.sigma_s_prime()[c],
+                p.sigma_a()[c],
+                ch.fit.range_mm[0],
+                ch.fit.range_mm[1]
+            );
+        }
+        for n in &d.notes {
+            println!("note: {n}");
+        }
+    }
+    println!(
+        "{} views of f_v, {} LRF samples, {}x{} texels of {} mm",
+        model.exiting.views.len(),
+        model.lrf.samples.len(),
+        model.width,
+        model.height,
+        model.texel_mm
+    );
+    if args.lrf_components.is_some() {
+        println!(
+            "LRF: {} -> {} floats, relative RMS error {:.3e}",
+            report.lrf_floats_raw, report.lrf_floats_written, report.lrf_rel_rms_error
+        );
+    }
+    println!(
+        "fit {:.2} s (dipole {:.2}, entrance {:.2}, exiting {:.2}, LRF {:.2}); wrote {}",
+        t.elapsed().as_secs_f64(),
+        timings.dipole,
+        timings.entrance,
+        timings.exiting,
+        timings.lrf,
+        args.output.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
