@@ -27,4 +27,5 @@ pub use exrio::{read_rgb, write_rgb};
 pub use format::{SaveOptions, SaveReport};
 pub mod fit;
 pub mod rectified;
+pub mod report;
 pub mod synth;
