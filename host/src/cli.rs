@@ -21,14 +21,16 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     // One variant per command; keep one line each so parallel edits do not collide.
-    /// Capture: `plan` (frames, disk, rig time vs lower bound), `run` (into a resumable capture directory).
-    Capture(cmd::capture::CaptureArgs),
+    /// The whole job on the built-in simulated rig: calibrate, capture, rectify, fit, render, report.
+    Demo(cmd::demo::DemoArgs),
     /// Render a mesh made of a material model (EXR/PNG); export pbrt-v4/Mitsuba 3 snippets.
     Render(cmd::render::RenderArgs),
     /// Calibrate the rig (response, colour, geometry, lamps, laser, all) into a calibration file.
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// HDR-merge and rectify a capture directory into CAPTURE_DIR/rectified/.
     Rectify(cmd::rectify::RectifyArgs),
+    /// Capture: `plan` (frames, disk, rig time vs lower bound), `run` (into a resumable capture directory).
+    Capture(cmd::capture::CaptureArgs),
     /// Talk to the rig's MCU: ping, status, home, move, galvo, laser, lamps, trigger, estop, clear.
     Rig(cmd::rig::RigArgs),
     /// Flash the firmware to the Nucleo-F446RE with probe-rs.
@@ -46,10 +48,11 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         // One arm per command.
-        Command::Capture(args) => cmd::capture::run(args),
+        Command::Demo(args) => cmd::demo::run(args),
         Command::Render(args) => cmd::render::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
         Command::Rectify(args) => cmd::rectify::run(args),
+        Command::Capture(args) => cmd::capture::run(args),
         Command::Rig(args) => cmd::rig::run(args),
         Command::Flash(args) => cmd::flash::run(args),
         Command::Sim(args) => cmd::sim::run(args),

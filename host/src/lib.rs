@@ -1,3 +1,9 @@
 //! The qhm program's library side: glue between the pipeline crates
-//! (`qhm-link`, `qhm-acquire`, `qhm-model`, `qhm-render`) used by the binary
-//! and by the cross-crate tests.
+//! (`qhm-link`, `qhm-acquire`, `qhm-imaging`, `qhm-model`, `qhm-render`)
+//! used by the binary and by the cross-crate tests.
+//!
+//! - [`pipeline`]: capture plan -> exposure-bracket shots and rectification settings.
+//! - [`demo`]: the whole job on the built-in simulated rig (`qhm demo`).
+
+pub mod demo;
+pub mod pipeline;

@@ -1,11 +1,12 @@
 //! One module per `qhm` subcommand.
-pub mod capture;
 pub mod calibrate;
-pub mod rectify;
-pub mod report;
+pub mod capture;
+pub mod demo;
 pub mod fit;
 pub mod flash;
+pub mod rectify;
+pub mod render;
+pub mod report;
 pub mod rig;
 pub mod sim;
 pub mod simpty;
-pub mod render;
