@@ -317,7 +317,7 @@ impl Dielectric {
                 weight: 0.0,
             }
         };
-        if !(s.pdf > 0.0) || !s.f.is_finite() {
+        if s.pdf.is_nan() || s.pdf <= 0.0 || !s.f.is_finite() {
             return None;
         }
         Some(BsdfSample {
@@ -447,10 +447,9 @@ mod tests {
                 rng.uniform(),
                 [rng.uniform(), rng.uniform()],
                 TransportMode::Importance,
-            ) {
-                if s.wi.z > 0.0 {
-                    mc += s.weight as f64;
-                }
+            ) && s.wi.z > 0.0
+            {
+                mc += s.weight as f64;
             }
         }
         mc /= n as f64;

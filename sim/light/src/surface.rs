@@ -377,14 +377,14 @@ mod tests {
     fn a_step_shadows_the_low_side() {
         let hf = HeightField::two_steps([30.0, 30.0], 0.0, 10.0);
         // on the low side next to the wall, looking over the wall at 45 degrees: blocked
-        let w = Vec3::new(1.0, 0.0, 1.0).normalize();
-        assert!(!hf.visible(Vec3::new(-2.0, 0.0, 0.0), w));
+        let w = Vec3::new(0.0, 1.0, 1.0).normalize();
+        assert!(!hf.visible(Vec3::new(0.0, -2.0, 0.0), w));
         assert!(hf.visible(
-            Vec3::new(-2.0, 0.0, 0.0),
-            Vec3::new(-1.0, 0.0, 1.0).normalize()
+            Vec3::new(0.0, -2.0, 0.0),
+            Vec3::new(0.0, -1.0, 1.0).normalize()
         ));
         let (_, p) = hf
-            .intersect_from_above(Vec3::new(5.0, 0.0, 100.0), -Vec3::Z)
+            .intersect_from_above(Vec3::new(0.0, 5.0, 100.0), -Vec3::Z)
             .unwrap();
         assert!((p.z - 10.0).abs() < 1e-5, "{p}");
     }

@@ -159,8 +159,9 @@ pub struct Tally {
     pub null_events: u64,
 }
 
-impl Tally {
-    pub fn add(mut self, o: Tally) -> Tally {
+impl std::ops::Add for Tally {
+    type Output = Tally;
+    fn add(mut self, o: Tally) -> Tally {
         self.launched += o.launched;
         self.missed += o.missed;
         self.reflected += o.reflected;
@@ -173,6 +174,9 @@ impl Tally {
         self.null_events += o.null_events;
         self
     }
+}
+
+impl Tally {
     /// Every launched photon is accounted for exactly once.
     pub fn balanced(&self) -> bool {
         self.launched
@@ -333,7 +337,7 @@ impl Pass<'_> {
                 continue;
             }
             let v = f(wl) * wl.z * inv / cam.norm;
-            if !(v > 0.0) || !self.scene.surface.visible(x, wc) {
+            if v.is_nan() || v <= 0.0 || !self.scene.surface.visible(x, wc) {
                 continue;
             }
             let q = (v as f64 * QUANTUM).min(1e18) as u64;
@@ -363,7 +367,7 @@ impl Pass<'_> {
                 t.launched = count;
                 t
             })
-            .reduce(Tally::default, Tally::add)
+            .reduce(Tally::default, |a, b| a + b)
     }
 
     fn emit(&self, source: &Source, rng: &mut Rng) -> (Vec3, Vec3) {

@@ -362,7 +362,7 @@ impl World {
                 exits: None,
                 channel: ch,
             };
-            *tally = tally.add(pass.run(&source, photons, pass_seed));
+            *tally = *tally + pass.run(&source, photons, pass_seed);
             // W per photon, mm^-2 -> m^-2
             let scale = flux_w / photons as f64 * 1e6;
             for (i, (k, cam)) in cams.iter().enumerate() {
@@ -389,7 +389,7 @@ impl World {
                 l.channel,
                 self.quality.laser_photons,
                 flux,
-                seed ^ 0x4C41_5345_52,
+                seed ^ 0x004C_4153_4552,
                 &mut tally,
             );
         }
