@@ -7,7 +7,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
     /// The mesh file does not exist or cannot be read.
-    #[error("cannot read mesh {path}: {source}")]
+    #[error("cannot read mesh {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -55,7 +55,7 @@ pub enum RenderError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
     /// Reading a scene or env map, or writing an image, failed.
-    #[error("{path}: {source}")]
+    #[error("cannot read {path}")]
     Io {
         path: PathBuf,
         #[source]

@@ -470,6 +470,32 @@ mod tests {
     }
 
     #[test]
+    fn obj_file_loads_with_uvs_scaled() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("q.obj");
+        std::fs::write(
+            &p,
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n",
+        )
+        .unwrap();
+        let m = Mesh::load(&p, 10.0, Some(20.0)).unwrap();
+        assert_eq!(m.triangles.len(), 2);
+        assert!((m.total_area() - 100.0).abs() < 1e-3);
+        // One file UV unit spans 20 mm of surface.
+        let uv = m.uvs.iter().flatten().fold(Vec2::ZERO, |a, b| a.max(*b));
+        assert_eq!(uv, Vec2::new(20.0, 20.0));
+        let bad = dir.path().join("q.stl");
+        std::fs::write(&bad, "solid").unwrap();
+        assert!(matches!(
+            Mesh::load(&bad, 1.0, None),
+            Err(MeshError::UnsupportedFormat(_))
+        ));
+        let empty = dir.path().join("e.obj");
+        std::fs::write(&empty, "v 0 0 0\n").unwrap();
+        assert!(Mesh::load(&empty, 1.0, None).is_err());
+    }
+
+    #[test]
     fn missing_file_is_an_error() {
         let e = Mesh::load(Path::new("/nonexistent/x.obj"), 1.0, None).unwrap_err();
         assert!(e.to_string().contains("cannot read mesh"));

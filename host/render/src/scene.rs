@@ -86,13 +86,19 @@ impl Scene {
     /// A built-in object with a default camera and a studio environment plus
     /// a key light.
     pub fn builtin(name: &str) -> Result<Scene, RenderError> {
-        let mut s = Scene::new(builtin_mesh(name)?);
+        Ok(Scene::lit(builtin_mesh(name)?))
+    }
+
+    /// A scene around `mesh` with the default lighting: a studio
+    /// environment (scale 0.5) and a key light from the front left.
+    pub fn lit(mesh: Mesh) -> Scene {
+        let mut s = Scene::new(mesh);
         s.env = Some(EnvMap::studio(0.5));
         s.lights.push(Light::Directional {
             to_light: Vec3::new(-0.5, -0.8, 1.0).normalize(),
             irradiance: Vec3::splat(2.0),
         });
-        Ok(s)
+        s
     }
 }
 

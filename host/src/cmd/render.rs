@@ -118,6 +118,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
         }
         bail!("give -o OUT.exr|OUT.png (or --export-pbrt/--export-mitsuba)");
     };
+    let ext = output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("exr" | "png")) {
+        bail!("output {} must end in .exr or .png", output.display());
+    }
     let file = match &args.scene {
         Some(p) => SceneFile::load(p).with_context(|| format!("scene {}", p.display()))?,
         None => SceneFile::default(),
@@ -127,12 +134,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
             let (scale, uv_scale) = file.object()?;
             let mesh = Mesh::load(path, scale, uv_scale)
                 .with_context(|| format!("mesh {}", path.display()))?;
-            let mut s = Scene::new(mesh);
-            // Default lighting as for built-ins.
-            let b = Scene::builtin("slab")?;
-            s.lights = b.lights;
-            s.env = b.env;
-            s
+            // Default lighting as for built-ins; the scene file may replace it.
+            Scene::lit(mesh)
         }
         (None, Some(name)) => Scene::builtin(name)?,
         _ => bail!("give --mesh FILE or --builtin NAME"),
