@@ -366,13 +366,14 @@ pub struct Plan {
     pub steps: Vec<Step>,
 }
 
-/// `n` angles evenly over the circle, in [-pi, pi) for the arc (its soft
-/// limits are +-(pi + 0.1)) or [0, 2 pi) for the turntable.
+/// `n` angles evenly over the circle: for the arc symmetric about 0 and half
+/// a step inside +-pi (its soft limits are +-(pi + 0.1), and its end switch
+/// is just beyond: never run up to them), for the turntable from 0.
 fn circle(n: u32, centred: bool) -> Vec<f64> {
     (0..n)
         .map(|i| {
             let a = 2.0 * PI * i as f64 / n as f64;
-            if centred { a - PI } else { a }
+            if centred { a - PI + PI / n as f64 } else { a }
         })
         .collect()
 }
@@ -468,7 +469,7 @@ impl Plan {
                     Pass::Exiting,
                     Some(PI / 2.0),
                     tt,
-                    tt - PI,
+                    tt - PI + PI / c.exiting_turntable as f64,
                     light,
                     &c.laser_exposures,
                     &c.cameras,
