@@ -628,6 +628,16 @@ impl SimCalibrator {
             cameras: vec![k],
         };
         let g = hardware::NOMINAL_GEOMETRY;
+        // The plane angle is measured with a mid-elevation camera: the top one is the
+        // least well placed by a flat checkerboard (docs/imaging.md).
+        let k_geo = if self.cameras.contains(&4) { 4 } else { k };
+        let cam_geo = self.cam_at_binning(cal, k_geo)?;
+        let one_geo = SimCalibrator {
+            rig: self.rig.clone(),
+            quality: self.quality,
+            seed: self.seed,
+            cameras: vec![k_geo],
+        };
         let mut angles = Vec::new();
         // Two-height target (y < 0 low, y >= 0 high): the stripe along y at arc 0 crosses the step.
         let mut world = self.world("two-height")?;
@@ -644,21 +654,23 @@ impl SimCalibrator {
                 }),
                 lamps: 0,
             };
-            let exposures = [0.0005, 0.002, 0.008, 0.032];
-            let frames = one
+            // A 10 mW stripe on white clips above ~0.1 ms: the bracket goes far below.
+            let exposures = [2e-6, 8e-6, 3.2e-5, 1.28e-4, 5.12e-4, 2.048e-3];
+            let frames = one_geo
                 .capture(&world, &illum, &exposures, 400 + (elev * 1000.0) as u64)?
                 .remove(0);
-            let hdr = self.merged(cal, k, &frames, &exposures)?;
-            let grid = Grid::centred(240, 0.1);
+            let hdr = self.merged(cal, k_geo, &frames, &exposures)?;
+            // 40 mm: at 30 deg the stripe on the high step is 17 mm from the low one.
+            let grid = Grid::centred(400, 0.1);
             let mut lines = Vec::new();
             for (z, keep_low) in [(0.0, true), (10.0, false)] {
                 let mut rect = rectify::rectify_at_height(
                     &hdr,
-                    &cam,
+                    &cam_geo,
                     cal.axis(),
                     theta,
                     &grid,
-                    &[gain[0] as f32, 0.0, 0.0],
+                    &[1.0, 0.0, 0.0],
                     z,
                 );
                 // Keep only this step's half of the target (sample y < 0 low, y >= 0 high), away from the edge.
@@ -723,7 +735,7 @@ impl SimCalibrator {
                 }),
                 lamps: 0,
             };
-            let exposures = [0.0005, 0.002, 0.008, 0.032, 0.128];
+            let exposures = [2e-6, 8e-6, 3.2e-5, 1.28e-4, 5.12e-4, 2.048e-3];
             let frames = one
                 .capture(&world, &illum, &exposures, 500 + c as u64)?
                 .remove(0);
