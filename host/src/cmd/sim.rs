@@ -3,6 +3,7 @@
 //! simulated sample or calibration target as a camera of the rig sees them;
 //! `bench` measures the light transport.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -113,8 +114,9 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
         Some(SimAction::Render(r)) => render(r),
         Some(SimAction::Bench(b)) => bench(b),
         Some(SimAction::Presets) => {
+            let mut out = std::io::stdout().lock();
             for p in sim_light::SCENE_PRESETS {
-                println!("{p}");
+                writeln!(out, "{p}")?;
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -280,31 +282,36 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
     let cores = std::thread::available_parallelism()
         .map(|n| n.get())
         .unwrap_or(1);
+    let mut out = std::io::stdout().lock();
     if b.json {
         let v = serde_json::json!({
             "report": report,
             "machine": { "cores": cores, "loadavg": load.trim() },
             "target_events_per_s_per_core_homogeneous": 45.0e6,
         });
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
     } else {
         for r in &report.rows {
-            println!(
+            writeln!(
+                out,
                 "{:28} {} thread(s): {:9.0} paths/s, {:6.2} M events/s/core, {:6.1} events/path",
                 r.medium,
                 r.threads,
                 r.paths_per_s,
                 r.events_per_s_per_core / 1e6,
                 r.mean_events_per_path
-            );
+            )?;
         }
         for (m, s) in &report.speedup_1_to_2 {
-            println!("speed-up 1 -> 2 threads, {m}: {s:.2}");
+            writeln!(out, "speed-up 1 -> 2 threads, {m}: {s:.2}")?;
         }
         if let Some(s) = report.full_pose_seconds {
-            println!("full-size pose (7 cameras, laser, default budget): {s:.2} s");
+            writeln!(
+                out,
+                "full-size pose (7 cameras, laser, default budget): {s:.2} s"
+            )?;
         }
-        println!("machine: {cores} cores, load average {}", load.trim());
+        writeln!(out, "machine: {cores} cores, load average {}", load.trim())?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -62,7 +62,7 @@ pub enum Error {
     #[error("unknown quality {0:?} (known: ci, preview, default, final)")]
     UnknownQuality(String),
     /// Reading a description file failed.
-    #[error("reading {path}: {source}")]
+    #[error("{path:?} is neither a preset ({known}) nor a readable file", known = SCENE_PRESETS.join(", "))]
     Io {
         path: String,
         source: std::io::Error,
