@@ -213,3 +213,91 @@ impl Rectified {
         std::fs::write(&p, text).map_err(|e| ModelError::io(&p, e))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{SynthSpec, write_synthetic};
+
+    fn capture() -> tempfile::TempDir {
+        let d = tempfile::tempdir().unwrap();
+        let mut spec = SynthSpec::small(crate::DipoleParams {
+            alpha_prime: [0.99; 3],
+            sigma_t_prime: [1.0; 3],
+            eta: 1.3,
+        });
+        spec.width = 8;
+        spec.height = 8;
+        spec.scan_offsets_mm = vec![0.3];
+        write_synthetic(d.path(), &spec).unwrap();
+        d
+    }
+
+    fn edit(dir: &Path, from: &str, to: &str) -> String {
+        let p = dir.join("rectified/index.toml");
+        let t = std::fs::read_to_string(&p).unwrap();
+        assert!(t.contains(from), "index lacks `{from}`");
+        std::fs::write(&p, t.replacen(from, to, 1)).unwrap();
+        Rectified::open(dir)
+            .map(|_| String::new())
+            .unwrap_or_else(|e| e.to_string())
+    }
+
+    #[test]
+    fn open_validates_the_index() {
+        let d = capture();
+        let r = Rectified::open(d.path()).unwrap();
+        assert_eq!(r.index.grid.width, 8);
+        let t = r.read_image(&r.index.stripe[0].file).unwrap();
+        assert_eq!((t.width, t.height), (8, 8));
+        assert!(edit(d.path(), "version = 1", "version = 2").contains("unsupported version 2"));
+        let d = capture();
+        assert!(edit(d.path(), "channel = 0", "channel = 5").contains("channel 5"));
+        let d = capture();
+        assert!(edit(d.path(), "pass = 2", "pass = 3").contains("pass 3"));
+        let d = capture();
+        assert!(
+            edit(d.path(), "line_dir = [0.0, 1.0]", "line_dir = [0.0, 2.0]").contains("line_dir")
+        );
+        let d = capture();
+        assert!(
+            edit(d.path(), "format = \"qhm-rectified\"", "format = \"x\"")
+                .contains("format is `x`")
+        );
+        let d = capture();
+        let e = edit(d.path(), "width = 8", "width = ");
+        assert!(e.contains("index.toml"), "{e}");
+    }
+
+    #[test]
+    fn images_must_exist_match_the_grid_and_stay_inside() {
+        let d = capture();
+        let r = Rectified::open(d.path()).unwrap();
+        std::fs::remove_file(r.root.join(&r.index.lamp[0].file)).unwrap();
+        assert!(
+            r.read_image(&r.index.lamp[0].file)
+                .unwrap_err()
+                .to_string()
+                .contains("missing file")
+        );
+        crate::write_rgb(
+            &r.root.join(&r.index.lamp[1].file),
+            &Texture::filled(4, 8, [0.0; 3]),
+        )
+        .unwrap();
+        assert!(
+            r.read_image(&r.index.lamp[1].file)
+                .unwrap_err()
+                .to_string()
+                .contains("the grid is 8×8")
+        );
+        assert!(
+            r.read_image("../x.exr")
+                .unwrap_err()
+                .to_string()
+                .contains("leaves")
+        );
+        // The fit reports an error instead of panicking.
+        assert!(crate::fit::fit_capture(d.path(), &crate::fit::FitOptions::default()).is_err());
+    }
+}
