@@ -180,6 +180,15 @@ pub async fn run_capture(
                     if status.fault == Some(protocol::FaultCause::HeartbeatLost) {
                         link.clear_fault().await?;
                     }
+                    // The arc homes towards negative angles and only finds its
+                    // home cam from the positive side (otherwise it runs into
+                    // its end switch): bring it back over home first, by a
+                    // relative move from where it was last sent.
+                    if rig.light_arc < 0.0 {
+                        link.move_rad(Axis::LightArc, -rig.light_arc + 0.2, true, 0.0, 0.0)
+                            .await?;
+                        link.wait_motion_done(Axis::LightArc).await?;
+                    }
                     if resets > opts.max_resets_per_step {
                         return Err(RunError::TooManyResets {
                             step: step.index,
