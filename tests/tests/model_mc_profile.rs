@@ -77,3 +77,9 @@ fn mc_stripe_profile_of_a_homogeneous_slab_fits_the_truth() {
     // need a huge slab; a white, translucent slab of s'_t ~ 1.5 keeps CI fast.
     check(1.5, 0.006, 400_000);
 }
+
+#[test]
+fn mc_stripe_profile_of_a_more_absorbing_slab_fits_the_truth() {
+    // a' = 0.952, s'_t = 2.1: a shorter diffusion length, where the dipole is poorer.
+    check(2.0, 0.1, 400_000);
+}
