@@ -66,9 +66,18 @@ fn check(sigma_s: f64, sigma_a: f64, photons: u64) {
         "s'_s {sigma_s} s_a {sigma_a}: R {r:.4}; a' {:.5} (true {a:.5}), s'_t {:.4} (true {st:.4}), range {:?}, residual {:.3e}",
         fit.alpha_prime, fit.sigma_t_prime, fit.range_mm, fit.residual
     );
-    assert!((fit.alpha_prime - a).abs() < 0.002, "a' {} vs {a}", fit.alpha_prime);
+    assert!(
+        (fit.alpha_prime - a).abs() < 0.002,
+        "a' {} vs {a}",
+        fit.alpha_prime
+    );
     let rel = (fit.sigma_t_prime - st).abs() / st;
-    assert!(rel < 0.05, "s'_t {} vs {st} ({:.1} %)", fit.sigma_t_prime, rel * 100.0);
+    assert!(
+        rel < 0.05,
+        "s'_t {} vs {st} ({:.1} %)",
+        fit.sigma_t_prime,
+        rel * 100.0
+    );
 }
 
 #[test]
