@@ -75,7 +75,9 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
         println!("residual      {:.3e} (relative RMS)", fit.residual);
     }
     if fit.sigma_t_prime >= qhm_model::dipole::SIGMA_T_PRIME_MAX * 0.999 {
-        bail!("s'_t hit the end of the search interval (10 mm^-1): the profile does not fit a dipole in range");
+        bail!(
+            "s'_t hit the end of the search interval (10 mm^-1): the profile does not fit a dipole in range"
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
