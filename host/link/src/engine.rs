@@ -261,10 +261,7 @@ impl Engine {
         }
         self.stats(|s| s.commands += 1);
         if !self.synced {
-            let synced = self.sync().await;
-            if let Err(e) = synced {
-                return Err(e);
-            }
+            self.sync().await?;
             if command == Command::Identify {
                 return self.identity_reply();
             }
@@ -504,6 +501,8 @@ impl Engine {
                 self.seq = expected.wrapping_sub(1);
             }
             Ok(Err(e)) => tracing::warn!("heartbeat refused: {e:?}"),
+            // Already logged where the link died.
+            Err(LinkError::Disconnected { .. }) => {}
             Err(e) => {
                 self.stats(|s| s.heartbeat_failures += 1);
                 tracing::warn!("heartbeat failed: {e}");

@@ -205,6 +205,18 @@ pub fn run(args: RigArgs) -> Result<ExitCode> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
+    // Bad arguments fail before any port is opened.
+    match &args.action {
+        RigAction::Lamps { mask } | RigAction::Trigger { mask, .. } => {
+            parse_mask(mask)?;
+        }
+        RigAction::Galvo {
+            action: GalvoAction::Sweep { trigger, .. },
+        } => {
+            parse_mask(trigger)?;
+        }
+        _ => {}
+    }
     rt.block_on(async move {
         let (link, _sim) = connect(&args.conn).await?;
         let timeout = Duration::from_secs_f64(args.conn.timeout.max(0.0));
