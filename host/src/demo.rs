@@ -252,7 +252,14 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     // 1. Calibration of the simulated rig (the same seed as the capture's rig).
     let cal_path = out.join("calibration.toml");
     let (cal_ok, cal_rows) = stages.run("calibrate", || {
-        let sim = SimCalibrator::new(opts.seed, rig_cfg.quality);
+        // Calibration images are always taken at `preview` quality or better:
+        // checkerboard corners need pixels, whatever the capture's scale, and
+        // the calibration is kept in full-resolution pixel units.
+        let quality = match opts.scale {
+            Scale::Ci => sim_light::SimQuality::preview(),
+            _ => rig_cfg.quality,
+        };
+        let sim = SimCalibrator::new(opts.seed, quality);
         let mut cal = Calibration::load_or_default(&cal_path)?;
         cal.source = format!("sim seed {} scale {}", opts.seed, opts.scale.name());
         let mut rows = Vec::new();

@@ -152,14 +152,25 @@ pub fn process_shot(shot: &Shot, cal: &Calibration, opts: &RectifyOptions) -> Re
                     *v = 0.0;
                 }
             }
-            let max = rect
+            // The threshold is relative to a robust peak (the 99th percentile),
+            // not the maximum: one Monte Carlo or sensor outlier must not put
+            // the whole stripe below it.
+            let mut values: Vec<f32> = rect
                 .data
                 .iter()
                 .skip(c)
                 .step_by(3)
+                .copied()
                 .filter(|v| v.is_finite())
-                .fold(0f32, |a, &b| a.max(b));
-            let line = rectify::fit_stripe_line(&rect, c, &opts.grid, max * opts.threshold as f32)?;
+                .collect();
+            let peak = if values.is_empty() {
+                0.0
+            } else {
+                let k = ((values.len() - 1) as f64 * 0.99).round() as usize;
+                *values.select_nth_unstable_by(k, f32::total_cmp).1
+            };
+            let line =
+                rectify::fit_stripe_line(&rect, c, &opts.grid, peak * opts.threshold as f32)?;
             rectify::keep_distance_interval(
                 &mut rect, &opts.grid, &line, c, opts.d_min, opts.d_max,
             );

@@ -1,0 +1,59 @@
+//! The `ci`-scale demo end to end (issue 7): the simulated rig is calibrated,
+//! captured, rectified, fitted, rendered and reported, and the recovered
+//! dipole parameters are checked against the homogeneous sample's truth.
+
+use host::demo::{DemoOptions, reference, reload_model, run};
+use qhm_acquire::Scale;
+
+#[test]
+#[ignore = "issue 7 open: at ci scale the green stripe profile is too noisy for the automatic fit range"]
+fn ci_demo_recovers_the_homogeneous_sample() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("demo");
+    let sample = "marble";
+    let opts = DemoOptions {
+        sample: sample.into(),
+        scale: Scale::Ci,
+        out: out.clone(),
+        force: false,
+        seed: 3,
+        quiet: true,
+        skip_renders: false,
+    };
+    let summary = run(&opts).expect("the ci demo runs");
+    let truth = reference(sample).expect("homogeneous presets have a truth");
+
+    // Every documented part is there and loads.
+    for part in [
+        "calibration.toml",
+        "capture/rectified/index.toml",
+        "model/manifest.toml",
+        "report/index.html",
+        "summary.json",
+    ] {
+        assert!(out.join(part).is_file(), "{part} missing");
+    }
+    assert_eq!(summary.renders.len(), 6);
+    for r in &summary.renders {
+        assert!(out.join(r).is_file(), "{r} missing");
+    }
+    let model = reload_model(&out).unwrap();
+    assert_eq!(model.dipole, summary.recovered);
+
+    for c in 0..3 {
+        let (a, a_true) = (summary.recovered.alpha_prime[c], truth.alpha_prime[c]);
+        let (s, s_true) = (summary.recovered.sigma_t_prime[c], truth.sigma_t_prime[c]);
+        assert!(
+            (a - a_true).abs() < 0.01,
+            "channel {c}: a' {a} vs true {a_true}"
+        );
+        assert!(
+            (s - s_true).abs() / s_true < 0.25,
+            "channel {c}: s'_t {s} vs true {s_true}"
+        );
+    }
+
+    // A second run into the same, now non-empty, directory is refused.
+    let err = run(&opts).unwrap_err();
+    assert!(format!("{err:#}").contains("--force"), "{err:#}");
+}
