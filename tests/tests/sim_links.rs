@@ -179,7 +179,10 @@ fn pty_serves_a_real_serial_device_and_hangs_up_on_disconnect() {
     // The port sees the hangup before the server thread has noticed it.
     let end = Instant::now() + Duration::from_secs(5);
     while !server.finished() {
-        assert!(Instant::now() < end, "the pty server did not finish after the disconnect");
+        assert!(
+            Instant::now() < end,
+            "the pty server did not finish after the disconnect"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
 }
