@@ -198,7 +198,7 @@ impl PlanConfig {
                 laser_exposures: vec![0.004, 0.032],
                 lamp_exposures: vec![0.008, 0.064],
                 binning: 8,
-                rectified_size: 16,
+                rectified_size: 48,
                 ..base
             },
         }

@@ -63,6 +63,12 @@ pub struct FitTimings {
     pub lrf: f64,
 }
 
+/// Light directions within 5 degrees of the normal count as vertical.
+const NEAR_VERTICAL_COS: f64 = 0.996_194_698_091_745_5;
+
+/// Pass-1 light directions closer than this (radians) are one direction.
+const SAME_LIGHT_DIR: f64 = 0.02;
+
 /// Directions are grouped when closer than this (radians).
 const SAME_DIR: f64 = 1e-3;
 
@@ -451,10 +457,13 @@ fn fit_entrance(
         })
         .collect::<Result<_, _>>()?;
     for (s, sum) in used.iter().zip(sums) {
+        // The three lasers' planes differ by fractions of a degree: group
+        // light directions at ~1 degree so each direction has all channels.
         let light = if is_vertical(s.light_dir) {
             [0, 0, (1.0 / SAME_DIR) as i64]
         } else {
-            dir_key(s.light_dir)
+            s.light_dir
+                .map(|x| ((x / SAME_LIGHT_DIR).round() * SAME_LIGHT_DIR / SAME_DIR).round() as i64)
         };
         let e = groups
             .entry((light, dir_key(s.view_dir), s.channel))
@@ -469,7 +478,10 @@ fn fit_entrance(
     }
     let mut samples: Vec<([f32; 3], [f32; 3])> = vec![([0.0, 0.0, 1.0], [1.0; 3])];
     for (lk, ld) in &lights {
-        if *lk == vertical {
+        // Near-vertical directions (the vertical stripe from another arc or
+        // turntable angle, tilted by the rig's small errors) are the
+        // reference itself, f = 1, not oblique samples.
+        if *lk == vertical || ld[2] > NEAR_VERTICAL_COS {
             continue;
         }
         let mut value = [f32::NAN; 3];
