@@ -18,7 +18,7 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, TransportMode};
+use crate::microfacet::{BsdfSample, Dielectric, TransportMode};
 use crate::rng::{Rng, mix64};
 use crate::sample::{COLOUR_PATTERN, TargetDesc, colour_patch_at};
 use crate::surface::HeightField;
@@ -395,6 +395,35 @@ impl Pass<'_> {
         }
     }
 
+    /// One crossing of the rough boundary: splat the light the boundary sends
+    /// towards the cameras, then sample reflection or refraction, with Russian
+    /// roulette on the sample's weight. `None` (counted as surface loss) ends
+    /// the photon.
+    fn boundary_event(
+        &self,
+        x: Vec3,
+        local: &Local,
+        wo: Vec3,
+        bsdf: &Dielectric,
+        rng: &mut Rng,
+        t: &mut Tally,
+    ) -> Option<BsdfSample> {
+        self.splat(x, local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+        let s = bsdf.sample_f(
+            wo,
+            rng.uniform(),
+            [rng.uniform(), rng.uniform()],
+            TransportMode::Importance,
+        );
+        match s {
+            Some(s) if s.weight >= 1.0 || rng.uniform() < s.weight => Some(s),
+            _ => {
+                t.surface_loss += 1;
+                None
+            }
+        }
+    }
+
     /// One photon's whole life.
     fn trace(&self, o: Vec3, d: Vec3, rng: &mut Rng, table: &[(f32, f32)], t: &mut Tally) {
         let hf = &self.scene.surface;
@@ -419,20 +448,9 @@ impl Pass<'_> {
             SurfaceKind::Dielectric(b) => *b,
         };
         // entry: surface reflection towards the cameras, then reflect or refract
-        self.splat(x, &local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
-        let Some(s) = bsdf.sample_f(
-            wo,
-            rng.uniform(),
-            [rng.uniform(), rng.uniform()],
-            TransportMode::Importance,
-        ) else {
-            t.surface_loss += 1;
+        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, rng, t) else {
             return;
         };
-        if s.weight < 1.0 && rng.uniform() >= s.weight {
-            t.surface_loss += 1;
-            return;
-        }
         if s.wi.z > 0.0 {
             t.reflected += 1;
             return;
@@ -479,20 +497,9 @@ impl Pass<'_> {
                 let n = hf.normal(x.x, x.y);
                 let local = Local::new(n);
                 let wo = local.to_local(-d);
-                self.splat(x, &local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
-                let Some(s) = bsdf.sample_f(
-                    wo,
-                    rng.uniform(),
-                    [rng.uniform(), rng.uniform()],
-                    TransportMode::Importance,
-                ) else {
-                    t.surface_loss += 1;
+                let Some(s) = self.boundary_event(x, &local, wo, &bsdf, rng, t) else {
                     return;
                 };
-                if s.weight < 1.0 && rng.uniform() >= s.weight {
-                    t.surface_loss += 1;
-                    return;
-                }
                 if s.wi.z > 0.0 {
                     t.exited += 1;
                     if let Some(g) = self.exits {
