@@ -242,8 +242,16 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     let out = opts.out.as_path();
     let rig_cfg = SimRigConfig::new(&opts.sample, opts.scale, opts.seed);
     // Validate the sample before anything long starts.
-    sim_light::SceneDesc::load(&opts.sample)
+    let desc = sim_light::SceneDesc::load(&opts.sample)
         .with_context(|| format!("sample {:?}", opts.sample))?;
+    // The fit assumes the sample's refractive index, as a user would pass
+    // `qhm fit --eta` for a known material.
+    let eta = match &desc {
+        sim_light::SceneDesc::Sample(s) => s.surface.eta,
+        sim_light::SceneDesc::Target { .. } => {
+            bail!("{:?} is a calibration target, not a sample", opts.sample)
+        }
+    };
     let mut stages = Stages {
         quiet: opts.quiet,
         times: Vec::new(),
@@ -332,7 +340,11 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     // 4. The four-part material model.
     let model_dir = out.join("model");
     let model = stages.run("fit", || {
-        let (model, _timings) = fit_capture(&capture, &FitOptions::default())?;
+        let fit_opts = FitOptions {
+            eta,
+            ..FitOptions::default()
+        };
+        let (model, _timings) = fit_capture(&capture, &fit_opts)?;
         model.save(&model_dir)?;
         Ok(model)
     })?;

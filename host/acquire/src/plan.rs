@@ -195,7 +195,7 @@ impl PlanConfig {
                 cameras: vec![3, 5, 7],
                 lamps: vec![2, 5],
                 scan_positions: 3,
-                laser_exposures: vec![0.004, 0.032],
+                laser_exposures: vec![0.0005, 0.004, 0.032],
                 lamp_exposures: vec![0.008, 0.064],
                 binning: 8,
                 rectified_size: 48,

@@ -244,6 +244,37 @@ impl Dielectric {
         }
     }
 
+    /// Sample only the transmitted direction from `wo` (a visible microfacet
+    /// normal, then refraction): `(wi, pdf)` with the pdf in solid angle of
+    /// `wi`. Used from the camera side to pick where light inside the medium
+    /// must come from to reach a camera. None for a smooth interface, at
+    /// total internal reflection, or for a degenerate sample.
+    pub fn sample_transmission(&self, wo: Vec3, u: [f32; 2]) -> Option<(Vec3, f32)> {
+        if self.mf.effectively_smooth() || wo.z == 0.0 {
+            return None;
+        }
+        let wm = self.mf.sample_wm(wo, u);
+        let (wi, etap) = refract(wo, wm, self.eta)?;
+        if wi.z * wo.z >= 0.0 {
+            return None;
+        }
+        let sden = wi.dot(wm) + wo.dot(wm) / etap;
+        let pdf = self.mf.pdf(wo, wm) * wi.dot(wm).abs() / (sden * sden);
+        (pdf.is_finite() && pdf > 0.0).then_some((wi, pdf))
+    }
+
+    /// The pdf of `sample_transmission(wo)` returning `wi`.
+    pub fn pdf_transmission(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if self.mf.effectively_smooth() || wo.z <= 0.0 || wi.z >= 0.0 {
+            return 0.0;
+        }
+        let Some((wm, etap, _)) = self.half_vector(wo, wi) else {
+            return 0.0;
+        };
+        let sden = wi.dot(wm) + wo.dot(wm) / etap;
+        self.mf.pdf(wo, wm) * wi.dot(wm).abs() / (sden * sden)
+    }
+
     /// Sample reflection or transmission, paired with `pdf`.
     pub fn sample_f(
         &self,

@@ -400,14 +400,21 @@ pub const SCENE_PRESETS: &[&str] = &[
     "two-height",
 ];
 
+/// GGX alpha of the homogeneous presets' top surface.
+pub const POLISHED_ROUGHNESS: f64 = 0.02;
+
 fn homogeneous(name: &str) -> Option<SampleDesc> {
     let (_, eta) = material_preset(name)?;
     Some(SampleDesc {
         name: name.to_string(),
         size_mm: default_size(),
         seed: 0,
+        // A polished slab: a nearly smooth boundary keeps the single-scattering
+        // microfacet model's energy loss (about 12 % of the light at alpha
+        // 0.15, 0.4 % at 0.02) from hiding the material's own coefficients.
         surface: SurfaceDesc {
             eta,
+            roughness: POLISHED_ROUGHNESS,
             ..SurfaceDesc::default()
         },
         volume: VolumeDesc {
@@ -565,6 +572,12 @@ impl SceneDesc {
                 }
                 if !(sf.roughness.is_finite() && (0.0..=1.0).contains(&sf.roughness)) {
                     return bad("surface.roughness", "must be in [0, 1]");
+                }
+                if sf.roughness < 1e-3 && sf.relief != Relief::Flat {
+                    return bad(
+                        "surface.roughness",
+                        "a smooth surface (roughness < 0.001) must have relief = \"flat\"",
+                    );
                 }
                 if !(sf.bump_amplitude_mm.is_finite()
                     && (0.0..=5.0).contains(&sf.bump_amplitude_mm))

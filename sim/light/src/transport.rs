@@ -27,6 +27,8 @@ use crate::surface::HeightField;
 pub const BLOCK: u64 = 2048;
 /// A photon that scatters this often is counted as truncated.
 pub const MAX_EVENTS: u32 = 1_000_000;
+/// Share of uniformly sampled directions in the vertex estimate on a relief.
+const DEFENSIVE: f32 = 0.1;
 /// Fixed-point quanta per unit of normalised splat.
 const QUANTUM: f64 = 4_294_967_296.0;
 
@@ -257,6 +259,10 @@ pub struct Pass<'a> {
     pub accum: Option<&'a Accum>,
     pub exits: Option<&'a ExitGrid>,
     pub channel: usize,
+    /// Splat the light leaving the volume by next-event estimation from
+    /// every scattering vertex near the surface (smooth images) instead of
+    /// at the boundary crossings themselves (unbiased too, but speckled).
+    pub vertex_nee: bool,
 }
 
 struct Local {
@@ -399,16 +405,20 @@ impl Pass<'_> {
     /// towards the cameras, then sample reflection or refraction, with Russian
     /// roulette on the sample's weight. `None` (counted as surface loss) ends
     /// the photon.
+    #[allow(clippy::too_many_arguments)]
     fn boundary_event(
         &self,
         x: Vec3,
         local: &Local,
         wo: Vec3,
         bsdf: &Dielectric,
+        splat: bool,
         rng: &mut Rng,
         t: &mut Tally,
     ) -> Option<BsdfSample> {
-        self.splat(x, local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+        if splat {
+            self.splat(x, local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+        }
         let s = bsdf.sample_f(
             wo,
             rng.uniform(),
@@ -420,6 +430,147 @@ impl Pass<'_> {
             _ => {
                 t.surface_loss += 1;
                 None
+            }
+        }
+    }
+
+    /// Next-event estimate from a scattering vertex `p` (isotropic phase)
+    /// into every camera: for each camera pick a direction to the surface by
+    /// refracting the camera direction through a sampled microfacet (the
+    /// exact refraction for a smooth surface), weigh by the transmittance to
+    /// the surface point and the boundary's BTDF there. Vertices deep below
+    /// the surface are skipped by Russian roulette on depth (weight 1/q), so
+    /// the estimate stays unbiased at a fraction of the cost.
+    fn vertex_splat(
+        &self,
+        p: Vec3,
+        st: f32,
+        table: &[(f32, f32)],
+        bsdf: &Dielectric,
+        rng: &mut Rng,
+    ) {
+        let Some(accum) = self.accum else { return };
+        let hf = &self.scene.surface;
+        let depth = (hf.height(p.x, p.y) - p.z).max(0.0);
+        let q = (1.0 - st * depth).exp().min(1.0);
+        if q < 1.0 && rng.uniform() >= q {
+            return;
+        }
+        let n0 = hf.normal(p.x, p.y);
+        let local0 = Local::new(n0);
+        let above = Vec3::new(p.x, p.y, p.z + depth);
+        let phase = 1.0 / (4.0 * std::f32::consts::PI);
+        for (k, cam) in self.cams.iter().enumerate() {
+            // camera direction from the point straight above the vertex
+            let wc0 = local0.to_local((cam.pos - above).normalize());
+            // On a relief the normal where the light leaves differs from n0:
+            // a share of uniform directions keeps every exit direction
+            // possible (all of them when the camera is below n0's horizon).
+            let defensive = match (hf.is_flat(), wc0.z > 0.0) {
+                (true, true) => 0.0,
+                (true, false) => continue,
+                (false, true) => DEFENSIVE,
+                (false, false) => 1.0,
+            };
+            let smooth = bsdf.mf.effectively_smooth();
+            let (dir, pdf) = if smooth {
+                match crate::microfacet::refract(wc0, Vec3::Z, bsdf.eta) {
+                    Some((wt, _)) => (local0.to_world(-wt), 1.0),
+                    None => continue,
+                }
+            } else {
+                let u = [rng.uniform(), rng.uniform()];
+                let dir = if rng.uniform() < defensive {
+                    sample_uniform_sphere(u)
+                } else {
+                    match bsdf.sample_transmission(wc0, u) {
+                        Some((wt, _)) => local0.to_world(-wt),
+                        None => continue,
+                    }
+                };
+                let q_bsdf = if defensive < 1.0 {
+                    bsdf.pdf_transmission(wc0, local0.to_local(-dir))
+                } else {
+                    0.0
+                };
+                (
+                    dir,
+                    (1.0 - defensive) * q_bsdf + defensive * uniform_sphere_pdf(),
+                )
+            };
+            if !(pdf > 0.0) || (hf.is_flat() && dir.z <= 0.0) {
+                continue;
+            }
+            // beyond 40 mean free paths nothing gets through
+            let Some((dist, x)) = hf.crossing_from_below(p, dir, 40.0 / st) else {
+                continue;
+            };
+            if !hf.inside_footprint(x.x, x.y) {
+                continue;
+            }
+            let Some((px, inv, wc)) = cam.project(x) else {
+                continue;
+            };
+            let local = Local::new(hf.normal(x.x, x.y));
+            let wl = local.to_local(wc);
+            if wl.z <= 0.0 || !hf.visible(x, wc) {
+                continue;
+            }
+            let tr = self.transmittance(p, dir, dist, st, table, rng);
+            if tr <= 0.0 {
+                continue;
+            }
+            let boundary = if smooth {
+                // delta BTDF T_F / cos_c, times cos_c, times the solid-angle
+                // Jacobian d w_t / d w_c = cos_c / (eta^2 cos_t)
+                let wo = local.to_local(-dir);
+                let tf = 1.0 - crate::microfacet::fr_dielectric(wl.z, bsdf.eta);
+                tf * wl.z / (bsdf.eta * bsdf.eta * wo.z.abs())
+            } else {
+                bsdf.f(local.to_local(-dir), wl, TransportMode::Importance) * wl.z / pdf
+            };
+            let v = phase * tr * boundary * inv / (cam.norm * q);
+            if !(v.is_finite() && v > 0.0) {
+                continue;
+            }
+            let qv = (v as f64 * QUANTUM).min(1e18) as u64;
+            accum.images[k][px].fetch_add(qv, Ordering::Relaxed);
+        }
+    }
+
+    /// Transmittance from `p` along `d` over `dist`: exact in a homogeneous
+    /// volume, ratio tracking against the majorant in a heterogeneous one.
+    fn transmittance(
+        &self,
+        p: Vec3,
+        d: Vec3,
+        dist: f32,
+        st: f32,
+        table: &[(f32, f32)],
+        rng: &mut Rng,
+    ) -> f32 {
+        let Some(vol) = &self.scene.volume else {
+            return 0.0;
+        };
+        if vol.grid.is_none() {
+            return (-st * dist).exp();
+        }
+        let maj = vol.majorant[self.channel];
+        let mut tr = 1.0f32;
+        let mut s = 0.0f32;
+        loop {
+            s -= (1.0 - rng.uniform()).ln() / maj;
+            if s >= dist {
+                return tr;
+            }
+            let y = p + d * s;
+            tr *= 1.0 - table[vol.material_at([y.x, y.y, y.z])].0 / maj;
+            if tr < 1e-4 {
+                // Russian roulette on negligible paths keeps ratio tracking short
+                if rng.uniform() < 0.5 {
+                    return 0.0;
+                }
+                tr *= 2.0;
             }
         }
     }
@@ -448,7 +599,7 @@ impl Pass<'_> {
             SurfaceKind::Dielectric(b) => *b,
         };
         // entry: surface reflection towards the cameras, then reflect or refract
-        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, rng, t) else {
+        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, true, rng, t) else {
             return;
         };
         if s.wi.z > 0.0 {
@@ -485,6 +636,7 @@ impl Pass<'_> {
         }
         let inv_maj = 1.0 / maj;
         let mut events = 0u32;
+        let mut from_vertex = false;
         loop {
             // free flight against the majorant (= s_t when homogeneous)
             let dist = -(1.0 - rng.uniform()).ln() * inv_maj;
@@ -497,9 +649,13 @@ impl Pass<'_> {
                 let n = hf.normal(x.x, x.y);
                 let local = Local::new(n);
                 let wo = local.to_local(-d);
-                let Some(s) = self.boundary_event(x, &local, wo, &bsdf, rng, t) else {
+                // A segment from a scattering vertex was already splatted by
+                // that vertex's next-event estimate.
+                let splat = !(self.vertex_nee && from_vertex);
+                let Some(s) = self.boundary_event(x, &local, wo, &bsdf, splat, rng, t) else {
                     return;
                 };
+                from_vertex = false;
                 if s.wi.z > 0.0 {
                     t.exited += 1;
                     if let Some(g) = self.exits {
@@ -535,6 +691,10 @@ impl Pass<'_> {
                 t.truncated += 1;
                 return;
             }
+            if self.vertex_nee && self.accum.is_some() {
+                self.vertex_splat(p, st, table, bsdf, rng);
+            }
+            from_vertex = true;
             d = sample_uniform_sphere_marsaglia(rng);
         }
     }

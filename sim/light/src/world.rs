@@ -144,6 +144,7 @@ pub struct World {
     rig: RigTruth,
     quality: SimQuality,
     laser_elevation: f64,
+    vertex_nee: bool,
 }
 
 fn f32v(v: DVec3) -> Vec3 {
@@ -232,12 +233,20 @@ impl World {
             rig,
             quality,
             laser_elevation: std::f64::consts::FRAC_PI_2,
+            vertex_nee: true,
         })
     }
 
     /// Clamp the laser unit at this (nominal) elevation on the light arc.
     pub fn set_laser_mount(&mut self, elevation_rad: f64) {
         self.laser_elevation = elevation_rad;
+    }
+    /// Choose the estimator of light leaving the volume: next-event
+    /// estimation from scattering vertices (the default, smooth images) or
+    /// splats at the boundary crossings (noisy; kept to check the default is
+    /// unbiased). Smooth surfaces need the default.
+    pub fn set_vertex_nee(&mut self, on: bool) {
+        self.vertex_nee = on;
     }
     pub fn laser_mount(&self) -> f64 {
         self.laser_elevation
@@ -361,6 +370,7 @@ impl World {
                 accum: Some(&accum),
                 exits: None,
                 channel: ch,
+                vertex_nee: self.vertex_nee,
             };
             *tally = *tally + pass.run(&source, photons, pass_seed);
             // W per photon, mm^-2 -> m^-2
@@ -436,6 +446,7 @@ impl World {
             accum: None,
             exits,
             channel: channel.min(2),
+            vertex_nee: false,
         };
         pass.run(source, photons, seed)
     }
