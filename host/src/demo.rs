@@ -29,7 +29,7 @@ use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
 use serde::Serialize;
 
-use crate::pipeline::{StripeWindow, rectify_options, shots};
+use crate::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -324,7 +324,12 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     stages.run("hdr + rectify", || {
         let cal = Calibration::load(&cal_path)?;
         let window = StripeWindow::default();
-        let shots = shots(&plan, &capture);
+        let (shots, skipped) = calibrated_shots(shots(&plan, &capture), &cal);
+        if !skipped.is_empty() && !opts.quiet {
+            eprintln!(
+                "   note: cameras {skipped:?} were not found in calibration; their frames are left out"
+            );
+        }
         let b = bar(opts.quiet, shots.len() as u64);
         rectify_capture(
             &shots,

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use qhm_acquire::plan::{Light, Plan, Step};
+use qhm_imaging::Calibration;
 use qhm_imaging::hdr::MergeOptions;
 use qhm_imaging::pipeline::{RectifyOptions, Shot, ShotLight};
 use qhm_imaging::rectify::Grid;
@@ -118,4 +119,17 @@ pub fn shots(plan: &Plan, capture_root: &Path) -> Vec<Shot> {
         }
     }
     out
+}
+
+/// Keeps the shots of cameras with a geometric calibration; returns them and
+/// the cameras left out (their frames stay in the capture, unrectified).
+pub fn calibrated_shots(shots: Vec<Shot>, cal: &Calibration) -> (Vec<Shot>, Vec<usize>) {
+    let ok = |k: usize| cal.camera(k).is_some_and(|c| c.geometry.is_some());
+    let mut skipped: Vec<usize> = shots.iter().map(|s| s.camera).filter(|&k| !ok(k)).collect();
+    skipped.sort_unstable();
+    skipped.dedup();
+    (
+        shots.into_iter().filter(|s| ok(s.camera)).collect(),
+        skipped,
+    )
 }

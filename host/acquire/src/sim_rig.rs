@@ -69,7 +69,7 @@ impl SimRigConfig {
     pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
         let (quality, speed) = match scale {
             Scale::Ci => (SimQuality::ci(), 4.0),
-            Scale::Default => (SimQuality::preview(), 4.0),
+            Scale::Default => (SimQuality::preview(), 8.0),
             Scale::Paper => (SimQuality::default_scale(), 2.0),
         };
         SimRigConfig {
@@ -405,16 +405,20 @@ fn illumination(s: &RigState) -> Illumination {
 fn pose_key(world: &World, ev: &TriggerEvent) -> u64 {
     let q = |a: f64| (a * 1e6).round() as i64 as u64;
     let s = &ev.state;
+    // Lamps alone do not care where the galvo points or where the laser is
+    // clamped (a resumed run may reach a lamp pose with either elsewhere).
+    let laser_on = s.laser.is_some();
+    let laser_only = |v: u64| if laser_on { v } else { 0 };
     let mut h = mix64(q(s.turntable_rad));
     for v in [
         q(s.light_arc_rad),
-        q(s.galvo_rad),
+        laser_only(q(s.galvo_rad)),
         s.laser.map_or(0, |(c, p)| {
             1 + c.index() as u64 * 10_000 + (p * 1000.0).round() as u64
         }),
         s.lamps as u64,
         ev.mask as u64,
-        q(world.laser_mount()),
+        laser_only(q(world.laser_mount())),
     ] {
         h = mix64(h ^ v);
     }

@@ -456,14 +456,30 @@ fn fit_entrance(
             Ok(sum / s.flux_per_mm)
         })
         .collect::<Result<_, _>>()?;
+    // The three lasers' planes differ by fractions of a degree: light
+    // directions within ~1 degree of a cluster's first member are one
+    // direction, so each direction has all channels (clusters, not a grid:
+    // rounding would split neighbours across a cell boundary).
+    let mut clusters: Vec<[f64; 3]> = Vec::new();
     for (s, sum) in used.iter().zip(sums) {
-        // The three lasers' planes differ by fractions of a degree: group
-        // light directions at ~1 degree so each direction has all channels.
         let light = if is_vertical(s.light_dir) {
             [0, 0, (1.0 / SAME_DIR) as i64]
         } else {
-            s.light_dir
-                .map(|x| ((x / SAME_LIGHT_DIR).round() * SAME_LIGHT_DIR / SAME_DIR).round() as i64)
+            let d = s.light_dir;
+            let close = |c: &[f64; 3]| {
+                (c[0] * d[0] + c[1] * d[1] + c[2] * d[2])
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    < SAME_LIGHT_DIR
+            };
+            let first = match clusters.iter().find(|c| close(c)) {
+                Some(c) => *c,
+                None => {
+                    clusters.push(d);
+                    d
+                }
+            };
+            dir_key(first)
         };
         let e = groups
             .entry((light, dir_key(s.view_dir), s.channel))

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use host::pipeline::{StripeWindow, rectify_options, shots};
+use host::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};
 use qhm_acquire::{CaptureDir, Manifest};
 use qhm_imaging::Calibration;
 use qhm_imaging::pipeline::rectify_capture;
@@ -60,7 +60,15 @@ pub fn run(args: RectifyArgs) -> anyhow::Result<ExitCode> {
     window.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
     let n = plan.config.rectified_size as usize;
     let opts = rectify_options(&plan, &window);
-    let shots = shots(&plan, root);
+    let (shots, skipped) = calibrated_shots(shots(&plan, root), &cal);
+    if !skipped.is_empty() {
+        eprintln!(
+            "note: cameras {skipped:?} have no geometric calibration; their frames are left out"
+        );
+    }
+    if shots.is_empty() {
+        bail!("no camera of the capture has a geometric calibration");
+    }
     let bar = indicatif::ProgressBar::new(shots.len() as u64);
     let out = root.join("rectified");
     let idx = rectify_capture(&shots, &cal, &opts, &out, &|done, _| {

@@ -27,6 +27,11 @@ use crate::surface::HeightField;
 pub const BLOCK: u64 = 2048;
 /// A photon that scatters this often is counted as truncated.
 pub const MAX_EVENTS: u32 = 1_000_000;
+/// Share of scattering vertices (within a mean free path of the surface)
+/// that make a next-event estimate: consecutive vertices of one path see
+/// nearly the same light, so a tenth of them loses little and saves most of
+/// the cost.
+const NEE_RATE: f32 = 0.1;
 /// Share of uniformly sampled directions in the vertex estimate on a relief.
 const DEFENSIVE: f32 = 0.1;
 /// Fixed-point quanta per unit of normalised splat.
@@ -79,6 +84,9 @@ impl Scene {
 /// A camera prepared for splatting, in the sample's frame.
 #[derive(Debug, Clone)]
 pub struct SplatCamera {
+    /// The rig's camera number: seeds this camera's next-event estimates, so
+    /// its image does not depend on which other cameras are rendered.
+    pub id: u32,
     pub pos: Vec3,
     /// World(sample)-to-camera rotation.
     pub rot: Mat3,
@@ -452,8 +460,19 @@ impl Pass<'_> {
         let Some(accum) = self.accum else { return };
         let hf = &self.scene.surface;
         let depth = (hf.height(p.x, p.y) - p.z).max(0.0);
-        let q = (1.0 - st * depth).exp().min(1.0);
-        if q < 1.0 && rng.uniform() >= q {
+        // On a relief the nearest exit may be a pore wall, not the surface
+        // straight above: the depth below the lowest surface point bounds the
+        // distance from below, so 1/q stays bounded (no fireflies).
+        let below_all = if hf.is_flat() {
+            depth
+        } else {
+            (hf.h_min - p.z).max(0.0)
+        };
+        let q = NEE_RATE * (1.0 - st * below_all).exp().min(1.0);
+        // Exactly one draw from the walk's stream, whatever the cameras: the
+        // walk (and so every image) is the same for any set of cameras.
+        let key = (rng.next_u32() as u64) << 32 | rng.next_u32() as u64;
+        if q < 1.0 && (key >> 40) as f32 / (1u64 << 24) as f32 >= q {
             return;
         }
         let n0 = hf.normal(p.x, p.y);
@@ -461,6 +480,7 @@ impl Pass<'_> {
         let above = Vec3::new(p.x, p.y, p.z + depth);
         let phase = 1.0 / (4.0 * std::f32::consts::PI);
         for (k, cam) in self.cams.iter().enumerate() {
+            let rng = &mut Rng::new(key, cam.id as u64);
             // camera direction from the point straight above the vertex
             let wc0 = local0.to_local((cam.pos - above).normalize());
             // On a relief the normal where the light leaves differs from n0:

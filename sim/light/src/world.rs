@@ -37,21 +37,21 @@ impl SimQuality {
             surface_cell_mm: 0.2,
         }
     }
-    /// 256 x 192, 400 k photons.
+    /// 256 x 192, 150 k photons per stripe, 100 k per lamp and channel.
     pub fn preview() -> Self {
         SimQuality {
             downscale: 4,
-            laser_photons: 400_000,
-            lamp_photons: 300_000,
+            laser_photons: 150_000,
+            lamp_photons: 100_000,
             surface_cell_mm: 0.1,
         }
     }
-    /// Full 1024 x 768, 4 M photons per light: a pose renders in seconds.
+    /// Full 1024 x 768, 1 M photons per light: a pose renders in seconds.
     pub fn default_scale() -> Self {
         SimQuality {
             downscale: 1,
-            laser_photons: 4_000_000,
-            lamp_photons: 3_000_000,
+            laser_photons: 1_000_000,
+            lamp_photons: 1_000_000,
             surface_cell_mm: 0.1,
         }
     }
@@ -297,6 +297,7 @@ impl World {
                 let rot: DMat3 = c.rotation_mat() * to_sample.transpose();
                 let (fx, fy) = (c.focal_px[0] / s, c.focal_px[1] / s);
                 let cam = SplatCamera {
+                    id: k as u32,
                     pos: f32v(pos),
                     rot: rot.as_mat3(),
                     fx: fx as f32,

@@ -318,7 +318,9 @@ fn vertex_estimate_agrees_with_boundary_splats_homogeneous() {
 fn vertex_estimate_agrees_with_boundary_splats_bread() {
     // voids (ratio tracking) and a porous relief (normals differ from the
     // column's): the cases where the estimator's sampling is approximate
-    estimators_agree(SceneDesc::preset("bread").unwrap(), 1_500_000, 0.04);
+    // The boundary splats' own noise here is ~2 % (0.1168 at 1.5 M photons,
+    // 0.1142 at 4 M, camera 3), so 5 % leaves room for both estimators.
+    estimators_agree(SceneDesc::preset("bread").unwrap(), 1_500_000, 0.05);
 }
 
 #[test]
@@ -350,4 +352,22 @@ fn smooth_surface_exit_matches_the_slightly_rough_limit() {
             "camera {k}: {a} vs {b}"
         );
     }
+}
+
+#[test]
+fn a_camera_image_does_not_depend_on_the_other_cameras_rendered() {
+    // A resumed capture may trigger a pose for fewer cameras than the first run.
+    let w = world(SceneDesc::preset("bread").unwrap());
+    let illum = Illumination {
+        lamps: 1 << 5,
+        laser: Some(LaserOn {
+            channel: 1,
+            power: 1.0,
+        }),
+        ..Illumination::default()
+    };
+    let all = w.render_pose(&illum, 0b1010_1000, 3).unwrap();
+    let one = w.render_pose(&illum, 1 << 5, 3).unwrap();
+    assert_eq!(all.image(5), one.image(5));
+    assert!(one.image(5).unwrap().sum(1) > 0.0);
 }
