@@ -120,6 +120,17 @@ async fn run_once(root: &Path, fresh: bool, stop: Option<(usize, Duration)>) -> 
     }
 }
 
+/// `root` holds exactly the files of `want`, byte for byte; names the ones that differ.
+fn assert_same_files(root: &Path, want: &BTreeMap<String, String>, what: &str) {
+    let got = hash_dir(root);
+    let differing: Vec<&String> = want
+        .keys()
+        .chain(got.keys())
+        .filter(|k| got.get(*k) != want.get(*k))
+        .collect();
+    assert!(differing.is_empty(), "{what} differs in {differing:?}");
+}
+
 /// A small deterministic generator for the interruption times.
 struct Lcg(u64);
 impl Lcg {
@@ -187,15 +198,7 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
         }
     }
     assert!(interruptions >= 2, "only {interruptions} interruptions");
-    let got = hash_dir(&resumed);
-    let differing: Vec<&String> = want
-        .keys()
-        .filter(|k| got.get(*k) != want.get(*k))
-        .collect();
-    assert!(
-        differing.is_empty(),
-        "resumed capture differs in {differing:?}"
-    );
+    assert_same_files(&resumed, &want, "resumed capture");
 
     // MCU resets injected at random moments of one run: recovered in place.
     let reset_dir = tmp.path().join("reset");
@@ -229,16 +232,7 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
         "no reset was seen: {report:?}"
     );
     drop(dir);
-    let got = hash_dir(&reset_dir);
-    let differing: Vec<&String> = want
-        .keys()
-        .filter(|k| got.get(*k) != want.get(*k))
-        .collect();
-    assert!(
-        differing.is_empty(),
-        "capture with resets differs in {differing:?}"
-    );
-    assert_eq!(got, want, "capture with resets differs");
+    assert_same_files(&reset_dir, &want, "capture with resets");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -258,9 +258,14 @@ impl Dielectric {
         if wi.z * wo.z >= 0.0 {
             return None;
         }
-        let sden = wi.dot(wm) + wo.dot(wm) / etap;
-        let pdf = self.mf.pdf(wo, wm) * wi.dot(wm).abs() / (sden * sden);
+        let pdf = self.transmission_pdf(wo, wi, wm, etap);
         (pdf.is_finite() && pdf > 0.0).then_some((wi, pdf))
+    }
+
+    /// Visible-normal density of `wm` times the refraction Jacobian dwm/dwi.
+    fn transmission_pdf(&self, wo: Vec3, wi: Vec3, wm: Vec3, etap: f32) -> f32 {
+        let sden = wi.dot(wm) + wo.dot(wm) / etap;
+        self.mf.pdf(wo, wm) * wi.dot(wm).abs() / (sden * sden)
     }
 
     /// The pdf of `sample_transmission(wo)` returning `wi`.
@@ -271,8 +276,7 @@ impl Dielectric {
         let Some((wm, etap, _)) = self.half_vector(wo, wi) else {
             return 0.0;
         };
-        let sden = wi.dot(wm) + wo.dot(wm) / etap;
-        self.mf.pdf(wo, wm) * wi.dot(wm).abs() / (sden * sden)
+        self.transmission_pdf(wo, wi, wm, etap)
     }
 
     /// Sample reflection or transmission, paired with `pdf`.

@@ -18,7 +18,7 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
 use crate::medium::Volume;
-use crate::microfacet::{BsdfSample, Dielectric, TransportMode};
+use crate::microfacet::{BsdfSample, Dielectric, TransportMode, fr_dielectric, refract};
 use crate::rng::{Rng, mix64};
 use crate::sample::{COLOUR_PATTERN, TargetDesc, colour_patch_at};
 use crate::surface::HeightField;
@@ -260,6 +260,13 @@ impl Accum {
     }
 }
 
+/// Add one splat (already normalised by the camera) to pixel `px` of camera `k`.
+#[inline]
+fn deposit(accum: &Accum, k: usize, px: usize, v: f32) {
+    let q = (v as f64 * QUANTUM).min(1e18) as u64;
+    accum.images[k][px].fetch_add(q, Ordering::Relaxed);
+}
+
 /// One transport run: a source, a channel, and where splats go.
 pub struct Pass<'a> {
     pub scene: &'a Scene,
@@ -354,8 +361,7 @@ impl Pass<'_> {
             if v.is_nan() || v <= 0.0 || !self.scene.surface.visible(x, wc) {
                 continue;
             }
-            let q = (v as f64 * QUANTUM).min(1e18) as u64;
-            accum.images[k][px].fetch_add(q, Ordering::Relaxed);
+            deposit(accum, k, px, v);
         }
     }
 
@@ -479,6 +485,7 @@ impl Pass<'_> {
         let local0 = Local::new(n0);
         let above = Vec3::new(p.x, p.y, p.z + depth);
         let phase = 1.0 / (4.0 * std::f32::consts::PI);
+        let smooth = bsdf.mf.effectively_smooth();
         for (k, cam) in self.cams.iter().enumerate() {
             let rng = &mut Rng::new(key, cam.id as u64);
             // camera direction from the point straight above the vertex
@@ -492,33 +499,33 @@ impl Pass<'_> {
                 (false, true) => DEFENSIVE,
                 (false, false) => 1.0,
             };
-            let smooth = bsdf.mf.effectively_smooth();
             let (dir, pdf) = if smooth {
-                match crate::microfacet::refract(wc0, Vec3::Z, bsdf.eta) {
+                match refract(wc0, Vec3::Z, bsdf.eta) {
                     Some((wt, _)) => (local0.to_world(-wt), 1.0),
                     None => continue,
                 }
             } else {
                 let u = [rng.uniform(), rng.uniform()];
-                let dir = if rng.uniform() < defensive {
-                    sample_uniform_sphere(u)
+                let (dir, q_bsdf) = if rng.uniform() < defensive {
+                    let dir = sample_uniform_sphere(u);
+                    let q = if defensive < 1.0 {
+                        bsdf.pdf_transmission(wc0, local0.to_local(-dir))
+                    } else {
+                        0.0
+                    };
+                    (dir, q)
                 } else {
                     match bsdf.sample_transmission(wc0, u) {
-                        Some((wt, _)) => local0.to_world(-wt),
+                        Some((wt, q)) => (local0.to_world(-wt), q),
                         None => continue,
                     }
-                };
-                let q_bsdf = if defensive < 1.0 {
-                    bsdf.pdf_transmission(wc0, local0.to_local(-dir))
-                } else {
-                    0.0
                 };
                 (
                     dir,
                     (1.0 - defensive) * q_bsdf + defensive * uniform_sphere_pdf(),
                 )
             };
-            if !(pdf > 0.0) || (hf.is_flat() && dir.z <= 0.0) {
+            if pdf.is_nan() || pdf <= 0.0 || (hf.is_flat() && dir.z <= 0.0) {
                 continue;
             }
             // beyond 40 mean free paths nothing gets through
@@ -544,17 +551,15 @@ impl Pass<'_> {
                 // delta BTDF T_F / cos_c, times cos_c, times the solid-angle
                 // Jacobian d w_t / d w_c = cos_c / (eta^2 cos_t)
                 let wo = local.to_local(-dir);
-                let tf = 1.0 - crate::microfacet::fr_dielectric(wl.z, bsdf.eta);
+                let tf = 1.0 - fr_dielectric(wl.z, bsdf.eta);
                 tf * wl.z / (bsdf.eta * bsdf.eta * wo.z.abs())
             } else {
                 bsdf.f(local.to_local(-dir), wl, TransportMode::Importance) * wl.z / pdf
             };
             let v = phase * tr * boundary * inv / (cam.norm * q);
-            if !(v.is_finite() && v > 0.0) {
-                continue;
+            if v.is_finite() && v > 0.0 {
+                deposit(accum, k, px, v);
             }
-            let qv = (v as f64 * QUANTUM).min(1e18) as u64;
-            accum.images[k][px].fetch_add(qv, Ordering::Relaxed);
         }
     }
 
@@ -672,7 +677,7 @@ impl Pass<'_> {
                 // A segment from a scattering vertex was already splatted by
                 // that vertex's next-event estimate.
                 let splat = !(self.vertex_nee && from_vertex);
-                let Some(s) = self.boundary_event(x, &local, wo, &bsdf, splat, rng, t) else {
+                let Some(s) = self.boundary_event(x, &local, wo, bsdf, splat, rng, t) else {
                     return;
                 };
                 from_vertex = false;
