@@ -197,7 +197,7 @@ impl PlanConfig {
                 scan_positions: 3,
                 laser_exposures: vec![0.0005, 0.004, 0.032],
                 lamp_exposures: vec![0.008, 0.064],
-                binning: 8,
+                binning: 4,
                 rectified_size: 48,
                 ..base
             },

@@ -68,7 +68,15 @@ pub struct SimRigConfig {
 impl SimRigConfig {
     pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
         let (quality, speed) = match scale {
-            Scale::Ci => (SimQuality::ci(), 4.0),
+            // Binned 4, not the sim's ci 8: at 0.7 mm pixels the stripe's
+            // near field blurs into the fitted profile (a' and s'_t biased).
+            Scale::Ci => (
+                SimQuality {
+                    downscale: 4,
+                    ..SimQuality::ci()
+                },
+                4.0,
+            ),
             Scale::Default => (SimQuality::preview(), 8.0),
             Scale::Paper => (SimQuality::default_scale(), 2.0),
         };

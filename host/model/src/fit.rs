@@ -2,11 +2,13 @@
 //! [`MaterialModel`]. Per colour channel:
 //!
 //! 1. I(d) from the vertical (pass-2) stripe images: exitance per incident
-//!    flux per mm, π L / flux_per_mm (L averaged over views: the Lambertian
-//!    exitance conversion), binned by distance d from each stripe's line.
-//! 2. R = 2 ∫ I(d) dd; bins the capture lacks (near field or tail masked as
-//!    NaN) are filled from the dipole by iterating R -> a' -> s'_t -> the
-//!    fraction of the model profile the measured bins cover.
+//!    flux per mm, binned by distance d from each stripe's line and averaged
+//!    over views. Each view's radiance becomes exitance through the Fresnel
+//!    transmittance of diffuse light (`dipole::exitance_per_radiance`), not
+//!    Lambert's π L.
+//! 2. R = 2 ∫ I(d) dd: near-field bins the capture lacks (masked as NaN) are
+//!    filled from the dipole by iterating R -> a' -> s'_t; beyond the data the
+//!    measured tail is continued at its own exponential decay.
 //! 3. a' by inverting R_total, s'_t by the profile fit ([`crate::profile`]).
 //! 4. f(w_i) from pass-1 stripe sums over views, relative to the vertical.
 //! 5. f_v(p, v) = Σ_l L(p, v, l) / Σ_l I_D(d(p, l)) flux_l / π (the formula
@@ -110,6 +112,54 @@ impl StripeTable {
     }
 }
 
+/// R = 2 ∫ I(d) dd from I(d) binned at `bin` mm (None: no valid texel).
+/// Measured bins count as they are; unmeasured bins below the last measured
+/// one (the stripe's near field, masked) come from the dipole `dp` when
+/// given; beyond the last bin the measured tail goes on at its own
+/// exponential decay, fitted over the outer third of the measured distances.
+/// The sample's edges and depth shape that far tail, and the dipole's
+/// semi-infinite tail would overstate it (and feed back through a' into a
+/// still longer tail).
+fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&Dipole>) -> f64 {
+    let centre = |k: usize| (k as f64 + 0.5) * bin;
+    let measured: Vec<usize> = (0..means.len()).filter(|&k| means[k].is_some()).collect();
+    let (Some(&first), Some(&last)) = (measured.first(), measured.last()) else {
+        return 0.0;
+    };
+    let inside: f64 = (0..=last)
+        .map(|k| match means[k] {
+            Some(i) => i,
+            None => dp.map_or(0.0, |dp| dp.stripe(centre(k))),
+        })
+        .sum::<f64>()
+        * bin;
+    // ln I = a - κ d over the outer third, least squares.
+    let from = centre(last) - (centre(last) - centre(first)) / 3.0;
+    let pts: Vec<(f64, f64)> = measured
+        .iter()
+        .filter(|&&k| centre(k) >= from)
+        .filter_map(|&k| means[k].filter(|&i| i > 0.0).map(|i| (centre(k), i.ln())))
+        .collect();
+    let n = pts.len() as f64;
+    let (mx, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let kappa = -sxy / sxx;
+    let d_end = (last + 1) as f64 * bin;
+    let tail = if pts.len() >= 4 && kappa > 1e-3 {
+        (my - kappa * (d_end - mx)).exp() / kappa
+    } else if let Some(dp) = dp {
+        // No usable decay (too few or noisy points): the dipole's own tail.
+        (dp.total() / 2.0 - (0..=last).map(|k| dp.stripe(centre(k))).sum::<f64>() * bin).max(0.0)
+    } else {
+        0.0
+    };
+    2.0 * (inside + tail)
+}
+
 /// Fits the material model of the capture in `capture_dir`.
 pub fn fit_capture(
     capture_dir: &Path,
@@ -131,6 +181,7 @@ pub fn fit_capture(
     // 1-3: the global dipole per channel from the vertical stripes.
     let t0 = Instant::now();
     let mut channels = Vec::new();
+    let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
     for c in 0..3u8 {
         let entries: Vec<&StripeEntry> = data
             .index
@@ -151,6 +202,8 @@ pub fn fit_capture(
             .par_iter()
             .map(|s| -> Result<(Vec<f64>, Vec<f64>, Vec<u64>), ModelError> {
                 let img = data.read_image(&s.file)?;
+                let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average)
+                    / s.flux_per_mm;
                 let mut sum = vec![0.0; n_bins];
                 let mut dsum = vec![0.0; n_bins];
                 let mut count = vec![0u64; n_bins];
@@ -163,7 +216,7 @@ pub fn fit_capture(
                         let d = s.distance(grid.centre(i, j));
                         let b = (d / bin) as usize;
                         if b < n_bins {
-                            sum[b] += PI * l / s.flux_per_mm;
+                            sum[b] += k * l;
                             dsum[b] += d;
                             count[b] += 1;
                         }
@@ -182,6 +235,9 @@ pub fn fit_capture(
                     Ok(a)
                 },
             )?;
+        let means: Vec<Option<f64>> = (0..n_bins)
+            .map(|k| (count[k] > 0).then(|| sum[k] / count[k] as f64))
+            .collect();
         let profile = Profile::new(
             (0..n_bins)
                 .filter(|&k| count[k] > 0)
@@ -194,13 +250,14 @@ pub fn fit_capture(
                 profile.distance_mm.len()
             )));
         }
-        let r_meas: f64 = 2.0 * profile.intensity.iter().sum::<f64>() * bin;
-        if !(r_meas > 0.0) {
+        if !(profile.intensity.iter().sum::<f64>() > 0.0) {
             return Err(ModelError::Fit(format!(
                 "channel {c}: no outgoing flux in the vertical stripe images"
             )));
         }
-        let mut r = r_meas;
+        // R and the fit depend on each other only through the dipole's fill
+        // of the unmeasured near field: a few rounds converge.
+        let mut r = reflectance_from_profile(&means, bin, None);
         let mut fit = None;
         // The automatic range is chosen once, with the first R.
         let mut range = opts.range;
@@ -219,16 +276,8 @@ pub fn fit_capture(
                 ..f
             };
             let dp = Dipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
-            let covered: f64 = 2.0
-                * profile
-                    .distance_mm
-                    .iter()
-                    .map(|&d| dp.stripe(d))
-                    .sum::<f64>()
-                * bin
-                / dp.total();
             fit = Some((r_used, f));
-            let next = r_meas / covered.clamp(1e-3, 1.0);
+            let next = reflectance_from_profile(&means, bin, Some(&dp));
             if (next - r).abs() < 1e-9 * r {
                 break;
             }
@@ -442,20 +491,39 @@ fn fit_entrance(
         .iter()
         .filter(|s| s.pass == 1 || (!has_vertical_pass1 && s.pass == 2))
         .collect();
-    let sums: Vec<f64> = used
+    // Each image's outgoing flux per mm of stripe over the band |d| <= reach
+    // around its line: the mean radiance at each signed distance (so the
+    // length of line inside the window does not matter) summed over the
+    // band. One reach for all images, so a stripe near the window's edge
+    // does not lose more of its profile than the vertical reference.
+    let grid = &data.index.grid;
+    let reach = {
+        let mut ext: Vec<f64> = used.iter().map(|s| band_extent(s, grid)).collect();
+        ext.sort_by(f64::total_cmp);
+        0.9 * ext[ext.len() / 2]
+    };
+    let fluxes: Vec<Option<f64>> = used
         .par_iter()
-        .map(|s| -> Result<f64, ModelError> {
+        .map(|s| -> Result<Option<f64>, ModelError> {
+            if band_extent(s, grid) < reach {
+                return Ok(None);
+            }
             let img = data.read_image(&s.file)?;
-            let c = s.channel as usize;
-            let sum: f64 = img
-                .data
-                .iter()
-                .map(|v| v[c] as f64)
-                .filter(|v| v.is_finite())
-                .sum();
-            Ok(sum / s.flux_per_mm)
+            Ok(Some(band_flux(&img, s, grid, reach) / s.flux_per_mm))
         })
         .collect::<Result<_, _>>()?;
+    let short = fluxes.iter().filter(|f| f.is_none()).count();
+    if short > 0 {
+        notes.push(format!(
+            "entrance function: {short} of {} stripe images left out: their line is within {reach:.1} mm of the window's edge",
+            used.len()
+        ));
+    }
+    let (used, sums): (Vec<&StripeEntry>, Vec<f64>) = used
+        .iter()
+        .zip(fluxes)
+        .filter_map(|(s, f)| f.map(|f| (*s, f)))
+        .unzip();
     // The three lasers' planes differ by fractions of a degree: light
     // directions within ~1 degree of a cluster's first member are one
     // direction, so each direction has all channels (clusters, not a grid:
@@ -574,4 +642,85 @@ fn fit_entrance(
         }
     }
     Ok((table, samples))
+}
+
+/// Signed distance of point `p` from the stripe's line, mm.
+fn signed_distance(s: &StripeEntry, p: [f64; 2]) -> f64 {
+    let (dx, dy) = (p[0] - s.line_point[0], p[1] - s.line_point[1]);
+    dx * s.line_dir[1] - dy * s.line_dir[0]
+}
+
+/// How far the window reaches from the stripe's line on its nearer side, mm.
+fn band_extent(s: &StripeEntry, grid: &crate::rectified::Grid) -> f64 {
+    let (mut lo, mut hi) = (0f64, 0f64);
+    for j in 0..grid.height as usize {
+        for i in 0..grid.width as usize {
+            let d = signed_distance(s, grid.centre(i, j));
+            lo = lo.min(d);
+            hi = hi.max(d);
+        }
+    }
+    hi.min(-lo)
+}
+
+/// Outgoing radiance integrated across the stripe over |d| <= reach, per mm
+/// of line: Σ over texel-wide signed-distance bins of the bin's mean
+/// radiance (over its finite texels) times the bin width; bins with no
+/// finite texel (the masked core) add nothing.
+fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reach: f64) -> f64 {
+    let c = s.channel as usize;
+    let bin = grid.texel_mm;
+    let n = (2.0 * reach / bin).ceil() as usize;
+    let (mut sum, mut count) = (vec![0.0; n], vec![0u32; n]);
+    for j in 0..grid.height as usize {
+        for i in 0..grid.width as usize {
+            let d = signed_distance(s, grid.centre(i, j));
+            if d.abs() > reach {
+                continue;
+            }
+            let b = (((d + reach) / bin) as usize).min(n - 1);
+            let l = img.get(i, j)[c] as f64;
+            if l.is_finite() {
+                sum[b] += l;
+                count[b] += 1;
+            }
+        }
+    }
+    (0..n)
+        .filter(|&b| count[b] > 0)
+        .map(|b| sum[b] / count[b] as f64 * bin)
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reflectance_continues_an_exponential_tail() {
+        // I(d) = e^{-d}: R = 2 ∫ e^{-d} dd = 2, measured only to 5 mm.
+        let bin = 0.05;
+        let means: Vec<Option<f64>> = (0..100)
+            .map(|k| Some((-(k as f64 + 0.5) * bin).exp()))
+            .collect();
+        let r = reflectance_from_profile(&means, bin, None);
+        assert!((r - 2.0).abs() < 2e-3, "{r}");
+    }
+
+    #[test]
+    fn reflectance_fills_the_near_field_from_the_dipole() {
+        // The dipole's own profile, the first 0.5 mm masked and measured to 40 mm.
+        let dp = Dipole::new(0.99, 2.0, 1.3);
+        let bin = 0.02;
+        let means: Vec<Option<f64>> = (0..2000)
+            .map(|k| {
+                let d = (k as f64 + 0.5) * bin;
+                (d > 0.5).then(|| dp.stripe(d))
+            })
+            .collect();
+        let r = reflectance_from_profile(&means, bin, Some(&dp));
+        assert!((r / dp.total() - 1.0).abs() < 0.01, "{r} vs {}", dp.total());
+        // Without the dipole the near field is simply missing.
+        assert!(reflectance_from_profile(&means, bin, None) < 0.95 * r);
+    }
 }

@@ -10,7 +10,10 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::ModelError;
-use crate::dipole::{DipoleParams, ScaledStripe, fresnel_transmittance_ratio};
+use crate::dipole::{
+    DipoleParams, ScaledStripe, exitance_per_radiance, fresnel_hemispherical_average,
+    fresnel_transmittance_ratio,
+};
 use crate::exrio::write_rgb;
 use crate::model::Texture;
 use crate::rectified::{Grid, Index, LampEntry, Rectified, StripeEntry};
@@ -82,10 +85,14 @@ impl SynthSpec {
         }
     }
 
-    /// The true f_v at texel (i, j) for view v: 1 + A a(i, j) v_x (mean 1 over ±x views).
+    /// The true f_v at texel (i, j) for view v: (1 + A a(i, j) v_x) times a
+    /// smooth surface's Fresnel exit shape π L / M (so the exitance, averaged
+    /// over ±x views, is the dipole's).
     pub fn fv(&self, i: usize, j: usize, view: [f64; 3]) -> f64 {
         let a = (2.0 * PI * i as f64 / 8.0).sin() * (2.0 * PI * j as f64 / 6.0).cos();
-        1.0 + self.fv_amplitude * a * view[0]
+        let eta = self.dipole.eta;
+        let shape = PI / exitance_per_radiance(view[2], eta, fresnel_hemispherical_average(eta));
+        (1.0 + self.fv_amplitude * a * view[0]) * shape
     }
 
     /// The true f(w_i): the smooth-surface Fresnel ratio.
