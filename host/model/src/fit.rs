@@ -491,48 +491,17 @@ fn fit_entrance(
         .iter()
         .filter(|s| s.pass == 1 || (!has_vertical_pass1 && s.pass == 2))
         .collect();
-    // Each image's outgoing flux per mm of stripe over the band |d| <= reach
-    // around its line: the mean radiance at each signed distance (so the
-    // length of line inside the window does not matter) summed over the
-    // band. One reach for all images, so a stripe near the window's edge
-    // does not lose more of its profile than the vertical reference.
-    let grid = &data.index.grid;
-    let reach = {
-        let mut ext: Vec<f64> = used.iter().map(|s| band_extent(s, grid)).collect();
-        ext.sort_by(f64::total_cmp);
-        0.9 * ext[ext.len() / 2]
-    };
-    let fluxes: Vec<Option<f64>> = used
-        .par_iter()
-        .map(|s| -> Result<Option<f64>, ModelError> {
-            if band_extent(s, grid) < reach {
-                return Ok(None);
-            }
-            let img = data.read_image(&s.file)?;
-            Ok(Some(band_flux(&img, s, grid, reach) / s.flux_per_mm))
-        })
-        .collect::<Result<_, _>>()?;
-    let short = fluxes.iter().filter(|f| f.is_none()).count();
-    if short > 0 {
-        notes.push(format!(
-            "entrance function: {short} of {} stripe images left out: their line is within {reach:.1} mm of the window's edge",
-            used.len()
-        ));
-    }
-    let (used, sums): (Vec<&StripeEntry>, Vec<f64>) = used
-        .iter()
-        .zip(fluxes)
-        .filter_map(|(s, f)| f.map(|f| (*s, f)))
-        .unzip();
     // The three lasers' planes differ by fractions of a degree: light
     // directions within ~1 degree of a cluster's first member are one
     // direction, so each direction has all channels (clusters, not a grid:
     // rounding would split neighbours across a cell boundary).
     let mut clusters: Vec<[f64; 3]> = Vec::new();
-    for (s, sum) in used.iter().zip(sums) {
-        let light = if is_vertical(s.light_dir) {
-            [0, 0, (1.0 / SAME_DIR) as i64]
-        } else {
+    let light_keys: Vec<[i64; 3]> = used
+        .iter()
+        .map(|s| {
+            if is_vertical(s.light_dir) {
+                return [0, 0, (1.0 / SAME_DIR) as i64];
+            }
             let d = s.light_dir;
             let close = |c: &[f64; 3]| {
                 (c[0] * d[0] + c[1] * d[1] + c[2] * d[2])
@@ -548,11 +517,45 @@ fn fit_entrance(
                 }
             };
             dir_key(first)
-        };
+        })
+        .collect();
+    // Each image's outgoing flux per mm of stripe over the band |d| <= reach
+    // around its line: the mean radiance at each signed distance (so the
+    // length of line inside the window does not matter) summed over the
+    // band. One reach for all images (0.9 x the median extent), so a stripe
+    // near the window's edge does not lose more of its profile than the
+    // vertical reference.
+    let grid = &data.index.grid;
+    let extents: Vec<f64> = used.iter().map(|s| band_extent(s, grid)).collect();
+    let reach = {
+        let mut sorted = extents.clone();
+        sorted.sort_by(f64::total_cmp);
+        0.9 * sorted[sorted.len() / 2]
+    };
+    let fluxes: Vec<Option<f64>> = used
+        .par_iter()
+        .zip(&extents)
+        .map(|(s, &e)| -> Result<Option<f64>, ModelError> {
+            if e < reach {
+                return Ok(None);
+            }
+            let img = data.read_image(&s.file)?;
+            Ok(Some(band_flux(&img, s, grid, reach) / s.flux_per_mm))
+        })
+        .collect::<Result<_, _>>()?;
+    let short = fluxes.iter().filter(|f| f.is_none()).count();
+    if short > 0 {
+        notes.push(format!(
+            "entrance function: {short} of {} stripe images left out: their line is within {reach:.1} mm of the window's edge",
+            used.len()
+        ));
+    }
+    for ((s, light), flux) in used.iter().zip(light_keys).zip(fluxes) {
+        let Some(flux) = flux else { continue };
         let e = groups
             .entry((light, dir_key(s.view_dir), s.channel))
             .or_insert((0.0, 0, s.light_dir));
-        e.0 += sum;
+        e.0 += flux;
         e.1 += 1;
     }
     let vertical = [0, 0, (1.0 / SAME_DIR) as i64];
@@ -600,9 +603,12 @@ fn fit_entrance(
             value[c as usize] = (num / den) as f32;
         }
         if value.iter().any(|v| !v.is_finite()) {
-            return Err(ModelError::Fit(format!(
-                "entrance function: light direction {ld:?} lacks a vertical reference in some channel"
-            )));
+            // Its stripes all lie near the window's edge, or no vertical
+            // reference shares a view: the table interpolates from the others.
+            notes.push(format!(
+                "entrance function: light direction {ld:.3?} left out (no usable stripe or vertical reference in some channel)"
+            ));
+            continue;
         }
         samples.push((f32v(*ld), value));
     }
