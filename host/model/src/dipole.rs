@@ -474,7 +474,8 @@ mod tests {
             .map(|k| {
                 let th = (k as f64 + 0.5) / n as f64 * std::f64::consts::FRAC_PI_2;
                 let l = 1.0 / exitance_per_radiance(th.cos(), 1.5, fa);
-                2.0 * std::f64::consts::PI * l * th.cos() * th.sin() * std::f64::consts::FRAC_PI_2 / n as f64
+                2.0 * std::f64::consts::PI * l * th.cos() * th.sin() * std::f64::consts::FRAC_PI_2
+                    / n as f64
             })
             .sum();
         assert!((m - 1.0).abs() < 1e-4, "{m}");

@@ -10,7 +10,7 @@
 //!    filled from the dipole by iterating R -> a' -> s'_t; beyond the data the
 //!    measured tail is continued at its own exponential decay.
 //! 3. a' by inverting R_total, s'_t by the profile fit ([`crate::profile`]).
-//! 4. f(w_i) from pass-1 stripe sums over views, relative to the vertical.
+//! 4. f(w_i) from pass-1 band fluxes over views, relative to the vertical.
 //! 5. f_v(p, v) = Σ_l L(p, v, l) / Σ_l I_D(d(p, l)) flux_l / π (the formula
 //!    after eq. 6 with I(p, l) from the dipole of eq. 5).
 //! 6. LRF = (L - f_v f(w_i) E cos θ_i (R_total - R_texel) / π) / E, negatives kept.
@@ -650,21 +650,15 @@ fn fit_entrance(
     Ok((table, samples))
 }
 
-/// Signed distance of point `p` from the stripe's line, mm.
-fn signed_distance(s: &StripeEntry, p: [f64; 2]) -> f64 {
-    let (dx, dy) = (p[0] - s.line_point[0], p[1] - s.line_point[1]);
-    dx * s.line_dir[1] - dy * s.line_dir[0]
-}
-
-/// How far the window reaches from the stripe's line on its nearer side, mm.
+/// How far the window reaches from the stripe's line on its nearer side, mm
+/// (the signed distance is linear: its extremes sit at corner texels).
 fn band_extent(s: &StripeEntry, grid: &crate::rectified::Grid) -> f64 {
+    let (w, h) = (grid.width as usize - 1, grid.height as usize - 1);
     let (mut lo, mut hi) = (0f64, 0f64);
-    for j in 0..grid.height as usize {
-        for i in 0..grid.width as usize {
-            let d = signed_distance(s, grid.centre(i, j));
-            lo = lo.min(d);
-            hi = hi.max(d);
-        }
+    for (i, j) in [(0, 0), (w, 0), (0, h), (w, h)] {
+        let d = s.signed_distance(grid.centre(i, j));
+        lo = lo.min(d);
+        hi = hi.max(d);
     }
     hi.min(-lo)
 }
@@ -680,7 +674,7 @@ fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reac
     let (mut sum, mut count) = (vec![0.0; n], vec![0u32; n]);
     for j in 0..grid.height as usize {
         for i in 0..grid.width as usize {
-            let d = signed_distance(s, grid.centre(i, j));
+            let d = s.signed_distance(grid.centre(i, j));
             if d.abs() > reach {
                 continue;
             }

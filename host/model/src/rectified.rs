@@ -53,8 +53,14 @@ pub struct StripeEntry {
 impl StripeEntry {
     /// Distance (mm) of a sample-frame point from the stripe's centre line.
     pub fn distance(&self, p: [f64; 2]) -> f64 {
+        self.signed_distance(p).abs()
+    }
+
+    /// Signed distance (mm) from the centre line, positive along the normal
+    /// (line_dir.y, -line_dir.x).
+    pub fn signed_distance(&self, p: [f64; 2]) -> f64 {
         let (dx, dy) = (p[0] - self.line_point[0], p[1] - self.line_point[1]);
-        (dx * self.line_dir[1] - dy * self.line_dir[0]).abs()
+        dx * self.line_dir[1] - dy * self.line_dir[0]
     }
 }
 
