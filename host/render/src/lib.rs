@@ -36,5 +36,7 @@ pub use film::Image;
 pub use light::{EnvMap, Light};
 pub use material::{Homogeneous, Material};
 pub use mesh::Mesh;
-pub use render::{Mode, RenderSettings, RenderStats, render_scene, render_scene_stats};
+pub use render::{
+    Mode, RenderSettings, RenderStats, render_scene, render_scene_camera, render_scene_stats,
+};
 pub use scene::{Scene, SceneFile};

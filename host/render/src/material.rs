@@ -33,6 +33,11 @@ pub trait Material: Sync {
     fn has_lrf(&self) -> bool {
         true
     }
+    /// Radius of the local disc A_o (mm) whose scattering the LRF holds:
+    /// eq. 4's dipole sum runs over the surface outside it. 0 = none.
+    fn local_disc_mm(&self) -> f32 {
+        0.0
+    }
 }
 
 /// A homogeneous material: plain dipole, smooth Fresnel entrance, no texture.
@@ -87,6 +92,15 @@ impl Material for qhm_model::MaterialModel {
     }
     fn has_lrf(&self) -> bool {
         !self.lrf.samples.is_empty()
+    }
+    /// The texel's equal-area disc: the fit's LRF keeps R_d integrated over
+    /// it (docs/model-format.md, "LRF").
+    fn local_disc_mm(&self) -> f32 {
+        if self.lrf.samples.is_empty() {
+            0.0
+        } else {
+            self.texel_mm / std::f32::consts::PI.sqrt()
+        }
     }
 }
 

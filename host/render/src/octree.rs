@@ -36,7 +36,22 @@ pub struct RdTable {
 
 impl RdTable {
     pub fn new(params: &DipoleParams, rho: f32) -> RdTable {
+        RdTable::with_hole(params, rho, 0.0)
+    }
+
+    /// The table of R_d(r) 1[r > hole], disk-averaged like [`RdTable::new`]:
+    /// summed over the samples it integrates R_d over the surface outside
+    /// the disc of radius `hole` around the query (eq. 4's B_o = A - A_o).
+    pub fn with_hole(params: &DipoleParams, rho: f32, hole: f32) -> RdTable {
         let rho = rho.max(0.0) as f64;
+        let hole = hole.max(0.0) as f64;
+        let g = |r: f64| {
+            if hole == 0.0 || r > hole {
+                params.rd(r)
+            } else {
+                [0.0; 3]
+            }
+        };
         let peak = params.rd(0.0);
         let below = |r: f64| {
             let v = params.rd(r);
@@ -51,7 +66,8 @@ impl RdTable {
         let dr = r_max / (n - 1) as f64;
         // Midpoint rule on the disk: equal-area rings x half the angles
         // (the integrand is symmetric about the line to the centre).
-        let (n_ring, n_ang) = (12, 12);
+        // Finer where the hole's edge cuts through the disk.
+        let (n_ring, n_ang) = if hole > 0.0 { (32, 32) } else { (12, 12) };
         let disk: Vec<(f64, f64)> = (0..n_ring)
             .flat_map(|i| {
                 let s = rho * ((i as f64 + 0.5) / n_ring as f64).sqrt();
@@ -65,11 +81,11 @@ impl RdTable {
             .map(|k| {
                 let r = k as f64 * dr;
                 let v = if rho == 0.0 {
-                    params.rd(r)
+                    g(r)
                 } else {
                     let mut acc = [0.0f64; 3];
                     for &(dx, dy) in &disk {
-                        let v = params.rd(((r - dx).powi(2) + dy * dy).sqrt());
+                        let v = g(((r - dx).powi(2) + dy * dy).sqrt());
                         for c in 0..3 {
                             acc[c] += v[c];
                         }
@@ -370,6 +386,38 @@ mod tests {
         }
         // Near the centre it is below the sharp peak of the point value.
         assert!(t.eval(0.0).x < p.rd(0.0)[0] as f32);
+    }
+
+    #[test]
+    fn kernel_with_hole_leaves_out_the_local_disc() {
+        // Σ over sample grids (a few offsets of the query) with the holed
+        // kernel ≈ ∫ R_d dA outside the disc: R_total - R_disc.
+        let p = marble();
+        let spacing = 0.3f32;
+        let hole = 0.5 / std::f32::consts::PI.sqrt();
+        let t = RdTable::with_hole(&p, 2.0 * spacing / std::f32::consts::PI.sqrt(), hole);
+        let n = (t.r_max / spacing) as i32 + 2;
+        let mut sum = Vec3::ZERO;
+        let offsets = [(0.0, 0.0), (0.5, 0.0), (0.25, 0.75), (0.5, 0.5)];
+        for (ox, oy) in offsets {
+            for i in -n..=n {
+                for j in -n..=n {
+                    let d = Vec2::new(i as f32 + ox, j as f32 + oy) * spacing;
+                    sum += t.eval(d.length()) * spacing * spacing / offsets.len() as f32;
+                }
+            }
+        }
+        for c in 0..3 {
+            let d = p.channel(c);
+            let outside = (d.total() - d.disc_integral(hole as f64)) as f32;
+            let disc = (d.disc_integral(hole as f64)) as f32;
+            // Within 3 % of the disc's share (which is ~9 % of the total).
+            assert!(
+                (sum[c] - outside).abs() < 0.03 * disc + 0.002 * outside,
+                "{c}: {} vs {outside} (disc {disc})",
+                sum[c]
+            );
+        }
     }
 
     #[test]

@@ -41,7 +41,11 @@ pub struct SurfaceSamples {
 pub enum Entrance<'a, M: Material> {
     /// The model's mesostructure entrance function f(w_i).
     Model(&'a M),
-    /// Plain dipole: the smooth-surface Fresnel transmittance 1 - F_r(eta).
+    /// Plain dipole: the smooth-surface Fresnel transmittance relative to
+    /// normal incidence, (1 - F_r(eta, w_i)) / (1 - F_r(eta, 0)). R_d's
+    /// total (a') is outgoing per incident flux at normal incidence, the
+    /// entry already inside (qhm-model fits it so; sim-light's Monte Carlo
+    /// matches R_total(a') that way), so only the angular change is applied.
     Fresnel(f64),
 }
 
@@ -49,9 +53,10 @@ impl<M: Material> Entrance<'_, M> {
     fn eval(&self, wi_local: Vec3) -> Vec3 {
         match self {
             Entrance::Model(m) => Vec3::from(m.entrance(wi_local.to_array())),
-            Entrance::Fresnel(eta) => Vec3::splat(
-                (1.0 - qhm_model::dipole::fresnel_dielectric(wi_local.z as f64, *eta)) as f32,
-            ),
+            Entrance::Fresnel(eta) => Vec3::splat(qhm_model::dipole::fresnel_transmittance_ratio(
+                wi_local.z as f64,
+                *eta,
+            ) as f32),
         }
     }
 }

@@ -11,9 +11,23 @@
 //! ([`crate::octree`]). Normalisation, as qhm-model defines its fit
 //! (docs/model-format.md): Σ R_d E A is a diffuse exitance, 1/pi turns it
 //! into radiance, and f_v (1 for a homogeneous material) carries the view
-//! dependence. The plain-dipole modes use Jensen et al. 2001 instead:
-//! L_global = (1 - F_r(eta, w_o)) / pi · Σ R_d E_i A_i with E_i attenuated
-//! by 1 - F_r(eta, w_i).
+//! dependence. The plain-dipole modes use the smooth-surface Fresnel shapes
+//! of Jensen et al. 2001 instead of f and f_v, normalised the way R_d is:
+//! L_global = (1 - F_r(eta, w_o)) / ((1 - F̄) pi) · Σ R_d E_i A_i with E_i
+//! attenuated by (1 - F_r(eta, w_i)) / (1 - F_r(eta, 0)). R_d integrates to
+//! R_total(a'), the outgoing per incident flux of a normal beam: both
+//! boundary crossings are already inside it (qhm-model fits a' from exactly
+//! that ratio; sim-light's Monte Carlo slab agrees with R_total(a') with no
+//! further factor). Jensen's unnormalised 1 - F_r at both ends would apply
+//! them a second time (x0.92 at eta 1.3, x0.87 at eta 1.5), as would any
+//! Fresnel factor on top of f and f_v in eq. 4, which already contain the
+//! incoming and outgoing Fresnel terms (paper section 3).
+//!
+//! When the material has an LRF, the dipole sum leaves out the disc A_o of
+//! radius `Material::local_disc_mm` around x_o: eq. 4 sums over B_o = A - A_o,
+//! and the LRF already holds what enters and leaves inside A_o (qhm-model's
+//! fit subtracts R_total - R_texel, the texel's own equal-area disc kept in
+//! the LRF). Summing the whole plane would count that part twice.
 //!
 //! Modes (paper Fig. 9): `full` (LRF + f, f_v, dipole), `lrf-only` (the BTF
 //! part alone), `lrf-dipole` (LRF + plain dipole without f and f_v) and
@@ -184,6 +198,8 @@ pub struct Prepared {
     pub rd: RdTable,
     pub texture: SynthTexture,
     eta: f64,
+    /// 1 / (1 - F̄): normalises the plain dipole's Fresnel exit.
+    exit_norm: f64,
 }
 
 /// Builds the surface samples, their irradiance, the octree and the
@@ -228,7 +244,13 @@ pub fn prepare<M: Material>(
     // averaged over a disk of twice that radius, which hides the sample
     // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
     let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
-    let rd = RdTable::new(&dipole, rho);
+    // Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
+    let hole = if settings.mode.has_lrf() && material.has_lrf() {
+        material.local_disc_mm().max(0.0)
+    } else {
+        0.0
+    };
+    let rd = RdTable::with_hole(&dipole, rho, hole);
     stats.secs_tree = t.elapsed().as_secs_f64();
     stats.surface_samples = samples.pos.len();
     stats.octree_nodes = tree.node_count();
@@ -251,6 +273,7 @@ pub fn prepare<M: Material>(
         rd,
         texture,
         eta: dipole.eta,
+        exit_norm: 1.0 / (1.0 - qhm_model::dipole::fresnel_hemispherical_average(dipole.eta)),
     })
 }
 
@@ -273,7 +296,36 @@ pub fn render_scene_stats<M: Material>(
     let mut stats = RenderStats::default();
     let prep = prepare(scene, material, settings, &mut stats)?;
     let t = Instant::now();
-    let (img, queries, terms) = render_pixels(scene, material, settings, &prep);
+    let camera = |x: f32, y: f32| Some(scene.camera.ray(x, y, settings.width, settings.height));
+    let (img, queries, terms) = render_pixels(scene, material, settings, &prep, &camera);
+    stats.secs_pixels = t.elapsed().as_secs_f64();
+    stats.queries = queries;
+    stats.terms = terms;
+    stats.secs_total = t0.elapsed().as_secs_f64();
+    Ok((img, stats))
+}
+
+/// [`render_scene_stats`] through the caller's camera model instead of
+/// `scene.camera`: `ray(x, y)` is the ray through film position (x, y) in
+/// pixels of the `settings.width` x `settings.height` image (origin top
+/// left, pixel i spanning [i, i + 1)), or `None` to leave that sample black.
+/// For cameras the pinhole [`crate::Camera`] cannot express, e.g. a
+/// calibrated camera with lens distortion (the Fig. 7 comparison renders
+/// through the simulated rig's camera).
+pub fn render_scene_camera<M: Material, F>(
+    scene: &Scene,
+    material: &M,
+    settings: &RenderSettings,
+    ray: F,
+) -> Result<(Image, RenderStats), RenderError>
+where
+    F: Fn(f32, f32) -> Option<Ray> + Sync,
+{
+    let t0 = Instant::now();
+    let mut stats = RenderStats::default();
+    let prep = prepare(scene, material, settings, &mut stats)?;
+    let t = Instant::now();
+    let (img, queries, terms) = render_pixels(scene, material, settings, &prep, &ray);
     stats.secs_pixels = t.elapsed().as_secs_f64();
     stats.queries = queries;
     stats.terms = terms;
@@ -287,12 +339,16 @@ const TILE: u32 = 16;
 /// of one sample's area share.
 pub const KERNEL_SPREAD: f32 = 2.0;
 
-fn render_pixels<M: Material>(
+fn render_pixels<M: Material, F>(
     scene: &Scene,
     material: &M,
     settings: &RenderSettings,
     prep: &Prepared,
-) -> (Image, u64, u64) {
+    camera: &F,
+) -> (Image, u64, u64)
+where
+    F: Fn(f32, f32) -> Option<Ray> + Sync,
+{
     let (w, h) = (settings.width, settings.height);
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
@@ -327,7 +383,9 @@ fn render_pixels<M: Material>(
                         for b in 0..m {
                             let px = x as f32 + (a as f32 + rng.random::<f32>()) / m as f32;
                             let py = y as f32 + (b as f32 + rng.random::<f32>()) / m as f32;
-                            let ray = scene.camera.ray(px, py, w, h);
+                            let Some(ray) = camera(px, py) else {
+                                continue;
+                            };
                             sum += radiance(
                                 scene,
                                 material,
@@ -453,8 +511,10 @@ fn radiance<M: Material>(
             }
         };
         let exit = if settings.mode.plain_dipole() {
+            // Normalised: ∫ (1 - F_r(w_o)) / ((1 - F̄) pi) cos dw_o = 1, so
+            // the exitance stays Σ R_d E A (see the module comment).
             let ft = 1.0 - qhm_model::dipole::fresnel_dielectric(wo_l.z as f64, prep.eta);
-            Vec3::splat(ft as f32 / PI)
+            Vec3::splat((ft * prep.exit_norm) as f32 / PI)
         } else {
             Vec3::from(material.exiting(uv, wo_l.to_array())) / PI
         };

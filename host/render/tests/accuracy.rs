@@ -163,3 +163,116 @@ fn back_light_shows_through_in_full_but_not_in_lrf_only() {
     let front = mean(Mode::LrfOnly, &scene);
     assert!((front.x - 0.15).abs() < 0.01, "{front}");
 }
+
+/// [`WithLrf`] whose LRF holds the scattering within a disc of radius
+/// `disc` mm, as a fitted model's LRF holds its texel's (eq. 4's A_o).
+struct WithLocalDisc(WithLrf, f32);
+
+impl Material for WithLocalDisc {
+    fn dipole(&self) -> DipoleParams {
+        self.0.dipole()
+    }
+    fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
+        self.0.entrance(wi)
+    }
+    fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
+        self.0.exiting(uv, wo)
+    }
+    fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+        self.0.lrf(uv, wi, wo)
+    }
+    fn texture_size(&self) -> (u32, u32) {
+        (1, 1)
+    }
+    fn texel_mm(&self) -> f32 {
+        1.0
+    }
+    fn local_disc_mm(&self) -> f32 {
+        self.1
+    }
+}
+
+/// Mean radiance of the centre of a wide slab lit and seen from above.
+fn wide_slab_mean<M: Material>(material: &M, mode: Mode, e: f32) -> Vec3 {
+    let mut scene = Scene::new(slab(40.0, 10.0).unwrap());
+    scene.camera = Camera::look_at(Vec3::new(0.0, 0.0, 100.0), Vec3::ZERO, 4f32.to_radians());
+    scene.camera.up = Vec3::Y;
+    scene.lights = vec![Light::Directional {
+        to_light: Vec3::Z,
+        irradiance: Vec3::splat(e),
+    }];
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 1,
+        mode,
+        surface_samples: 40_000,
+        epsilon: 0.02,
+        synthesis: false,
+        ..Default::default()
+    };
+    render_scene(&scene, material, &settings)
+        .unwrap()
+        .mean(0, 0, 8, 8)
+}
+
+#[test]
+fn lrf_local_disc_is_left_out_of_the_dipole_sum() {
+    // Eq. 4: L = R E + f_v / pi Σ_{B_o} R_d f E A. The LRF already holds
+    // the disc A_o, so the dipole sum must skip it, not count it again.
+    let disc = 0.6f32;
+    let m = WithLocalDisc(
+        WithLrf(Homogeneous {
+            dipole: synthetic(),
+        }),
+        disc,
+    );
+    let e = 2.0f32;
+    let got = wide_slab_mean(&m, Mode::Full, e).x;
+    let d = synthetic().channel(0);
+    let lrf = 0.05 * e;
+    let outside = (d.total() - d.disc_integral(disc as f64)) as f32;
+    let exact = lrf + e * outside / std::f32::consts::PI;
+    let doubled = lrf + e * d.total() as f32 / std::f32::consts::PI;
+    assert!(
+        (doubled - exact) / exact > 0.06,
+        "the disc must matter: {doubled} vs {exact}"
+    );
+    let rel = (got - exact).abs() / exact;
+    assert!(
+        rel < 0.03,
+        "got {got}, expected {exact} (whole plane: {doubled})"
+    );
+}
+
+#[test]
+fn plain_dipole_keeps_the_total_reflectance() {
+    // R_total(a') is outgoing per incident flux: dipole-only applies only
+    // the angular Fresnel shapes, normalised (entry 1 at normal incidence,
+    // exit (1 - F(w_o)) / (1 - F̄)), not Jensen's 1 - F at both ends again.
+    let p = DipoleParams {
+        eta: 1.5,
+        ..synthetic()
+    };
+    let m = Homogeneous { dipole: p };
+    let e = 2.0f32;
+    let got = wide_slab_mean(&m, Mode::DipoleOnly, e).x;
+    let f0 = qhm_model::dipole::fresnel_dielectric(1.0, 1.5);
+    let fbar = qhm_model::dipole::fresnel_hemispherical_average(1.5);
+    let exact = (e as f64 * p.channel(0).total() * (1.0 - f0)
+        / ((1.0 - fbar) * std::f64::consts::PI)) as f32;
+    let doubled = exact * ((1.0 - f0) * (1.0 - fbar)) as f32;
+    assert!((exact - doubled) / exact > 0.1, "{exact} vs {doubled}");
+    let rel = (got - exact).abs() / exact;
+    assert!(
+        rel < 0.04,
+        "got {got}, expected {exact} (Fresnel twice: {doubled})"
+    );
+    // And full mode (f_v = 1: Lambertian exit) has the same exitance.
+    let full = wide_slab_mean(&m, Mode::Full, e).x;
+    let lambert = (e as f64 * p.channel(0).total() / std::f64::consts::PI) as f32;
+    assert!(
+        (full - lambert).abs() / lambert < 0.04,
+        "{full} vs {lambert}"
+    );
+}
