@@ -272,16 +272,22 @@ impl HeightField {
 
     /// First point where the segment o + t d, 0 < t <= t_max, starting inside
     /// the medium (below the surface), crosses the surface going up.
-    #[inline]
+    #[inline(always)]
     pub fn crossing_from_below(&self, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, Vec3)> {
-        let z1 = o.z + d.z * t_max;
         if self.is_flat() {
-            if z1 > self.flat_height && d.z > 0.0 {
+            // the walk's hot path: inlined, the relief's ray march is not
+            if o.z + d.z * t_max > self.flat_height && d.z > 0.0 {
                 let t = (self.flat_height - o.z) / d.z;
                 return Some((t, o + d * t));
             }
             return None;
         }
+        self.crossing_from_below_relief(o, d, t_max)
+    }
+
+    #[inline(never)]
+    fn crossing_from_below_relief(&self, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, Vec3)> {
+        let z1 = o.z + d.z * t_max;
         let z_top = o.z.max(z1);
         if z_top < self.h_min {
             return None;

@@ -288,7 +288,10 @@ fn window_mean(r: &PoseRadiance, k: usize, half: usize) -> f64 {
 }
 
 /// Both estimators of the light leaving the volume, the vertex next-event
-/// estimate and the boundary-crossing splats, see the same mean radiance.
+/// estimate and the boundary-crossing splats, see the same mean radiance
+/// over the central 64 x 64 pixels. (Over 32 x 32 the boundary splats' noise
+/// is 2-3 % between seeds on the homogeneous slab, as large as the
+/// tolerance; over 64 x 64 it is 0.7-1.2 %, the vertex estimate's 0.13 %.)
 fn estimators_agree(desc: SceneDesc, photons: u64, tolerance: f64) {
     let q = SimQuality {
         lamp_photons: photons,
@@ -303,7 +306,7 @@ fn estimators_agree(desc: SceneDesc, photons: u64, tolerance: f64) {
     w.set_vertex_nee(false);
     let boundary = w.render_pose(&illum, 1 << 7 | 1 << 3, 9).unwrap();
     for k in [3usize, 7] {
-        let (a, b) = (window_mean(&nee, k, 16), window_mean(&boundary, k, 16));
+        let (a, b) = (window_mean(&nee, k, 32), window_mean(&boundary, k, 32));
         eprintln!("camera {k}: vertex NEE {a:.5e}, boundary splats {b:.5e}");
         assert!((a / b - 1.0).abs() < tolerance, "camera {k}: {a} vs {b}");
     }
