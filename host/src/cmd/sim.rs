@@ -306,9 +306,13 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
             writeln!(out, "speed-up 1 -> 2 threads, {m}: {s:.2}")?;
         }
         if let Some(s) = report.full_pose_seconds {
+            let cpu = report
+                .full_pose_cpu_seconds
+                .map(|c| format!(" ({c:.2} CPU s)"))
+                .unwrap_or_default();
             writeln!(
                 out,
-                "full-size pose (7 cameras, laser, default budget): {s:.2} s"
+                "full-size pose (7 cameras, laser, default budget): {s:.2} s{cpu}"
             )?;
         }
         writeln!(out, "machine: {cores} cores, load average {}", load.trim())?;

@@ -21,8 +21,8 @@ fn main() -> Result<(), sim_light::Error> {
         );
     }
     println!(
-        "speed-up 1->2: {:?}  full pose: {:?} s  splat share: {:?}",
-        r.speedup_1_to_2, r.full_pose_seconds, r.splat_share
+        "speed-up 1->2: {:?}  full pose: {:?} s ({:?} CPU s)  splat share: {:?}",
+        r.speedup_1_to_2, r.full_pose_seconds, r.full_pose_cpu_seconds, r.splat_share
     );
     Ok(())
 }

@@ -508,6 +508,16 @@ impl Pass<'_> {
         rng: &mut WalkRng,
     ) {
         let Some(accum) = self.accum else { return };
+        // Exactly one draw from the walk's stream, whatever the cameras: the
+        // walk (and so every image) is the same for any set of cameras.
+        let key = rng.next_u64();
+        let u = (key >> 40) as f32 / (1u64 << 24) as f32;
+        // q <= NEE_RATE < 1, so most vertices are turned away here, before
+        // the height lookup and the exponential (same decisions as testing
+        // u >= q alone)
+        if u >= NEE_RATE {
+            return;
+        }
         let hf = &self.scene.surface;
         let depth = (hf.height(p.x, p.y) - p.z).max(0.0);
         // On a relief the nearest exit may be a pore wall, not the surface
@@ -519,10 +529,7 @@ impl Pass<'_> {
             (hf.h_min - p.z).max(0.0)
         };
         let q = NEE_RATE * (1.0 - st * below_all).exp().min(1.0);
-        // Exactly one draw from the walk's stream, whatever the cameras: the
-        // walk (and so every image) is the same for any set of cameras.
-        let key = rng.next_u64();
-        if q < 1.0 && (key >> 40) as f32 / (1u64 << 24) as f32 >= q {
+        if u >= q {
             return;
         }
         let n0 = hf.normal(p.x, p.y);
