@@ -11,6 +11,7 @@
 //!    point near a corner is orthogonal to the vector to the corner), iterated.
 
 use glam::DVec2;
+use rayon::prelude::*;
 
 use crate::{Error, Result};
 
@@ -142,6 +143,177 @@ pub fn refine_corner(gray: &[f32], w: usize, h: usize, p: DVec2, radius: usize) 
     Some(q)
 }
 
+/// Least-squares fit of a corner model to the raw pixels around `p`:
+/// I(u) = m + a tanh(d1 / w) tanh(d2 / w), d_k = n_k . (u - c), n_k the unit
+/// normal of edge k at angle phi_k. Both edges are straight through the corner
+/// (a projected board), so every pixel of the window, not only those with a
+/// strong gradient, informs c; image noise that is flat on average leaves c
+/// unbiased (the gradient-orthogonality refinement is pulled towards its start
+/// point by noise gradients). `e1`, `e2` are the (predicted) image vectors to
+/// the neighbouring corners along the board's two axes: the window is the
+/// parallelogram |s|, |t| <= `reach` of u - p = s e1 + t e2. Returns None when
+/// the fit fails or moves the corner by more than a third of the window.
+pub fn fit_saddle(
+    gray: &[f32],
+    w: usize,
+    h: usize,
+    p: DVec2,
+    e1: DVec2,
+    e2: DVec2,
+    reach: f64,
+) -> Option<DVec2> {
+    let det = e1.x * e2.y - e1.y * e2.x;
+    if !(det.abs() > 1e-6) {
+        return None;
+    }
+    // Window pixels: the parallelogram's bounding box, filtered.
+    let corners = [e1 + e2, e1 - e2, -e1 + e2, -e1 - e2].map(|v| v * reach);
+    let ext = corners.iter().fold(DVec2::ZERO, |a, v| a.max(v.abs()));
+    let (x0, x1) = (
+        (p.x - ext.x).floor() as isize,
+        (p.x + ext.x).ceil() as isize,
+    );
+    let (y0, y1) = (
+        (p.y - ext.y).floor() as isize,
+        (p.y + ext.y).ceil() as isize,
+    );
+    if x0 < 0 || y0 < 0 || x1 >= w as isize || y1 >= h as isize {
+        return None;
+    }
+    let mut px: Vec<(DVec2, f64)> = Vec::new();
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let d = DVec2::new(x as f64, y as f64) - p;
+            let s = (d.x * e2.y - d.y * e2.x) / det;
+            let t = (e1.x * d.y - e1.y * d.x) / det;
+            if s.abs() <= reach && t.abs() <= reach {
+                px.push((d, gray[y as usize * w + x as usize] as f64));
+            }
+        }
+    }
+    if px.len() < 16 {
+        return None;
+    }
+    // Parameters relative to p: [cx, cy, phi1, phi2, m, a, ln w].
+    let normal_angle = |e: DVec2| (-e.x).atan2(e.y); // normal of an edge along e
+    let mut q = [
+        0.0,
+        0.0,
+        normal_angle(e1),
+        normal_angle(e2),
+        0.0,
+        0.0,
+        0.0f64,
+    ];
+    let model = |q: &[f64; 7], d: DVec2| {
+        let (n1, n2) = (
+            DVec2::new(q[2].cos(), q[2].sin()),
+            DVec2::new(q[3].cos(), q[3].sin()),
+        );
+        let c = DVec2::new(q[0], q[1]);
+        let ww = q[6].exp();
+        let (d1, d2) = ((d - c).dot(n1), (d - c).dot(n2));
+        ((d1 / ww).tanh(), (d2 / ww).tanh(), d1, d2, n1, n2, ww)
+    };
+    // m and a by linear least squares for the initial geometry.
+    let lin = |q: &[f64; 7]| {
+        let (mut s1, mut st, mut stt, mut sv, mut stv) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(d, v) in &px {
+            let (t1, t2, ..) = model(q, d);
+            let t = t1 * t2;
+            s1 += 1.0;
+            st += t;
+            stt += t * t;
+            sv += v;
+            stv += t * v;
+        }
+        let den = s1 * stt - st * st;
+        if den.abs() < 1e-12 {
+            return None;
+        }
+        let a = (s1 * stv - st * sv) / den;
+        Some(((sv - a * st) / s1, a))
+    };
+    let (m0, a0) = lin(&q)?;
+    q[4] = m0;
+    q[5] = a0;
+    let cost = |q: &[f64; 7]| {
+        px.iter()
+            .map(|&(d, v)| {
+                let (t1, t2, ..) = model(q, d);
+                let r = q[4] + q[5] * t1 * t2 - v;
+                r * r
+            })
+            .sum::<f64>()
+    };
+    let mut c0 = cost(&q);
+    let mut lambda = 1e-3;
+    for _ in 0..50 {
+        let mut jtj = [0.0; 49];
+        let mut jtr = [0.0; 7];
+        for &(d, v) in &px {
+            let (t1, t2, d1, d2, n1, n2, ww) = model(&q, d);
+            let a = q[5];
+            let (g1, g2) = ((1.0 - t1 * t1) / ww, (1.0 - t2 * t2) / ww);
+            let c = DVec2::new(q[0], q[1]);
+            let (p1, p2) = (
+                DVec2::new(-q[2].sin(), q[2].cos()),
+                DVec2::new(-q[3].sin(), q[3].cos()),
+            );
+            let dc = -(n1 * (g1 * t2) + n2 * (t1 * g2)) * a;
+            let j = [
+                dc.x,
+                dc.y,
+                a * g1 * t2 * (d - c).dot(p1),
+                a * t1 * g2 * (d - c).dot(p2),
+                1.0,
+                t1 * t2,
+                -a * (g1 * d1 * t2 + t1 * g2 * d2),
+            ];
+            let r = q[4] + a * t1 * t2 - v;
+            for i in 0..7 {
+                jtr[i] += j[i] * r;
+                for k in 0..7 {
+                    jtj[i * 7 + k] += j[i] * j[k];
+                }
+            }
+        }
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut aug = jtj;
+            for i in 0..7 {
+                aug[i * 7 + i] += lambda * jtj[i * 7 + i].max(1e-12);
+            }
+            let neg: Vec<f64> = jtr.iter().map(|x| -x).collect();
+            let Some(step) = crate::linalg::cholesky_solve(&aug, &neg, 7) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut nq = q;
+            for i in 0..7 {
+                nq[i] += step[i];
+            }
+            nq[6] = nq[6].clamp(-3.0, 2.5);
+            let c1 = cost(&nq);
+            if c1 < c0 {
+                let done = (c0 - c1) < 1e-10 * c0 || step[0].hypot(step[1]) < 1e-5;
+                q = nq;
+                c0 = c1;
+                lambda = (lambda * 0.3).max(1e-9);
+                improved = !done;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let c = DVec2::new(q[0], q[1]);
+    let limit = reach / 3.0 * e1.length().min(e2.length());
+    (c.length() <= limit && c.is_finite()).then_some(p + c)
+}
+
 /// An inner checkerboard corner: on a circle around it the intensity crosses its
 /// mean four times and is point-symmetric. The board's outer edge against the
 /// background makes T-junctions and L-corners, which fail one or the other.
@@ -180,34 +352,64 @@ pub fn detect_checkerboard(
     predicted: &[DVec2],
     square_px: f64,
 ) -> Result<Vec<Option<DVec2>>> {
+    detect_board(gray, w, h, predicted, &[], &[], square_px)
+}
+
+/// As [`detect_checkerboard`], with the predicted centres of the board's
+/// squares and whether each is the bright one (`squares`, may be empty). A
+/// checkerboard is periodic and the nominal geometry can be off by a square:
+/// among the offsets that line up nearly as many corners as the best, the
+/// one whose squares have the predicted colours wins (a shift by one square
+/// swaps them; one by two loses two rows of corners). `axes[i]` are the
+/// predicted image vectors from corner i to its neighbours along the board's
+/// two axes (empty: taken from the nearest predicted corners, which picks a
+/// diagonal instead of an axis when the board is seen at a grazing angle).
+pub fn detect_board(
+    gray: &[f32],
+    w: usize,
+    h: usize,
+    predicted: &[DVec2],
+    axes: &[(DVec2, DVec2)],
+    squares: &[(DVec2, bool)],
+    square_px: f64,
+) -> Result<Vec<Option<DVec2>>> {
+    if !axes.is_empty() && axes.len() != predicted.len() {
+        return Err(Error::Input(format!(
+            "{} axes for {} predicted corners",
+            axes.len(),
+            predicted.len()
+        )));
+    }
     if gray.len() != w * h || w < 16 || h < 16 {
         return Err(Error::Input(format!(
             "image {w}x{h} with {} values",
             gray.len()
         )));
     }
-    if !(square_px >= 6.0) {
+    if !(square_px >= 5.0) {
         return Err(Error::Corners(format!(
             "squares of {square_px:.1} px are too small to find"
         )));
     }
-    let sigma = (square_px / 8.0).clamp(1.0, 3.0);
+    let sigma = (square_px / 8.0).clamp(0.8, 3.0);
     let min_dist = (square_px / 3.0) as usize;
     let saddles: Vec<DVec2> = find_saddles(gray, w, h, sigma, 0.05, min_dist.max(2))
         .into_iter()
-        .filter(|p| is_x_junction(gray, w, h, *p, 0.35 * square_px))
+        .filter(|p| is_x_junction(gray, w, h, *p, (0.35 * square_px).max(2.0)))
         .collect();
     if saddles.is_empty() {
         return Err(Error::Corners("no saddle points in the image".into()));
     }
-    // Vote for the offset: pair the predicted centre-most corner with each saddle.
+    // Vote for the offset: pair each of the five predicted centre-most corners
+    // (one of them may not have been found) with each saddle.
     let tol = 0.3 * square_px;
     let centre: DVec2 = predicted.iter().copied().sum::<DVec2>() / predicted.len().max(1) as f64;
-    let anchor = predicted
-        .iter()
-        .copied()
-        .min_by(|a, b| (*a - centre).length().total_cmp(&(*b - centre).length()))
-        .ok_or_else(|| Error::Input("no predicted corners".into()))?;
+    let mut anchors = predicted.to_vec();
+    anchors.sort_by(|a, b| (*a - centre).length().total_cmp(&(*b - centre).length()));
+    anchors.truncate(5);
+    if anchors.is_empty() {
+        return Err(Error::Input("no predicted corners".into()));
+    }
     let nearest = |p: DVec2| -> Option<DVec2> {
         saddles
             .iter()
@@ -215,40 +417,171 @@ pub fn detect_checkerboard(
             .filter(|s| (*s - p).length() < tol)
             .min_by(|a, b| (*a - p).length().total_cmp(&(*b - p).length()))
     };
-    let mut best = (0usize, DVec2::ZERO);
-    for s in &saddles {
-        let off = *s - anchor;
-        if off.length() > 4.0 * square_px + 0.2 * w as f64 {
-            continue;
-        }
-        let n = predicted
-            .iter()
-            .filter(|p| nearest(**p + off).is_some())
-            .count();
-        if n > best.0 {
-            best = (n, off);
+    let mut offsets: Vec<DVec2> = Vec::new();
+    for a in &anchors {
+        for s in &saddles {
+            let off = *s - *a;
+            if off.length() <= 4.0 * square_px + 0.2 * w as f64
+                && offsets.iter().all(|o| (*o - off).length() > 0.5)
+            {
+                offsets.push(off);
+            }
         }
     }
-    if best.0 < predicted.len() / 2 {
+    let mut votes: Vec<(usize, DVec2)> = offsets
+        .into_par_iter()
+        .map(|off| {
+            let n = predicted
+                .iter()
+                .filter(|p| nearest(**p + off).is_some())
+                .count();
+            (n, off)
+        })
+        .collect();
+    votes.sort_by(|a, b| b.0.cmp(&a.0));
+    let top = votes.first().map_or(0, |v| v.0);
+    if top < predicted.len() / 2 {
         return Err(Error::Corners(format!(
-            "only {} of {} corners line up with the prediction",
-            best.0,
+            "only {top} of {} corners line up with the prediction",
             predicted.len()
         )));
     }
-    let blurred = gaussian_blur(gray, w, h, 0.7);
-    let radius = ((square_px * 0.3) as usize).clamp(3, 12);
-    Ok(predicted
+    let mut best = votes[0];
+    if !squares.is_empty() {
+        // Colour agreement of the squares: mean over squares of +-(value - mid).
+        let smooth = gaussian_blur(gray, w, h, (square_px / 6.0).max(0.7));
+        let parity = |off: DVec2| -> f64 {
+            let vals: Vec<(f64, bool)> = squares
+                .iter()
+                .filter_map(|(c, bright)| {
+                    let q = *c + off;
+                    (q.x >= 0.0 && q.y >= 0.0 && q.x <= (w - 1) as f64 && q.y <= (h - 1) as f64)
+                        .then(|| {
+                            (
+                                crate::image::bilinear_plane(&smooth, w, h, q.x, q.y) as f64,
+                                *bright,
+                            )
+                        })
+                })
+                .collect();
+            if vals.is_empty() {
+                return 0.0;
+            }
+            let mid = vals.iter().map(|v| v.0).sum::<f64>() / vals.len() as f64;
+            vals.iter()
+                .map(|(v, b)| if *b { v - mid } else { mid - v })
+                .sum::<f64>()
+                / squares.len() as f64
+        };
+        let mut cands: Vec<(usize, DVec2)> = Vec::new();
+        for v in votes.iter().filter(|v| v.0 as f64 >= 0.75 * top as f64) {
+            if cands.iter().all(|c| (c.1 - v.1).length() > tol) {
+                cands.push(*v);
+            }
+        }
+        best = cands
+            .iter()
+            .copied()
+            .max_by(|a, b| {
+                let sa = a.0 as f64 * parity(a.1).max(0.0);
+                let sb = b.0 as f64 * parity(b.1).max(0.0);
+                sa.total_cmp(&sb)
+            })
+            .unwrap_or(best);
+    }
+    // Second association through the image-to-image homography of the first
+    // matches: it absorbs the prediction's perspective and scale errors.
+    let first: Vec<(DVec2, DVec2)> = predicted
         .iter()
-        .map(|p| nearest(*p + best.1).and_then(|s| refine_corner(&blurred, w, h, s, radius)))
-        .collect())
+        .filter_map(|p| nearest(*p + best.1).map(|s| (*p, s)))
+        .collect();
+    let hmap: Box<dyn Fn(DVec2) -> DVec2 + Sync> = if first.len() >= 8 {
+        let (a, b): (Vec<DVec2>, Vec<DVec2>) = first.iter().copied().unzip();
+        match crate::zhang::homography(&a, &b) {
+            Ok(hm) => Box::new(move |p: DVec2| {
+                let q = hm * glam::DVec3::new(p.x, p.y, 1.0);
+                DVec2::new(q.x / q.z, q.y / q.z)
+            }),
+            Err(_) => Box::new(move |p: DVec2| p + best.1),
+        }
+    } else {
+        Box::new(move |p: DVec2| p + best.1)
+    };
+    let blurred = gaussian_blur(gray, w, h, 0.7);
+    let radius = ((square_px * 0.3) as usize).clamp(2, 12);
+    // Local board axes at each corner: given, or from the predicted neighbours.
+    let axes = |i: usize| -> Option<(DVec2, DVec2)> {
+        if let Some(a) = axes.get(i) {
+            return Some(*a);
+        }
+        let p = predicted[i];
+        let mut near: Vec<DVec2> = predicted
+            .iter()
+            .map(|q| *q - p)
+            .filter(|d| d.length() > 0.3 * square_px)
+            .collect();
+        near.sort_by(|a, b| a.length().total_cmp(&b.length()));
+        let e1 = *near.first()?;
+        let e2 = *near
+            .iter()
+            .find(|d| (d.normalize().dot(e1.normalize())).abs() < 0.8)?;
+        Some((e1, e2))
+    };
+    let found: Vec<Option<DVec2>> = (0..predicted.len())
+        .into_par_iter()
+        .map(|i| {
+            let s = nearest(hmap(predicted[i]))?;
+            let g = refine_corner(&blurred, w, h, s, radius).unwrap_or(s);
+            let (e1, e2) = axes(i)?;
+            fit_saddle(gray, w, h, g, e1, e2, 0.6)
+        })
+        .collect();
+    Ok(reject_outliers(predicted, found))
+}
+
+/// Drop corners that a homography through all the others does not explain
+/// (wrong saddle, fit gone astray): residual above 4 times the median and 0.5 px.
+pub fn reject_outliers(predicted: &[DVec2], mut found: Vec<Option<DVec2>>) -> Vec<Option<DVec2>> {
+    for _ in 0..3 {
+        let idx: Vec<usize> = (0..found.len()).filter(|&i| found[i].is_some()).collect();
+        if idx.len() < 8 {
+            return found;
+        }
+        let a: Vec<DVec2> = idx.iter().map(|&i| predicted[i]).collect();
+        let b: Vec<DVec2> = idx.iter().filter_map(|&i| found[i]).collect();
+        let Ok(hm) = crate::zhang::homography(&a, &b) else {
+            return found;
+        };
+        let res: Vec<f64> = a
+            .iter()
+            .zip(&b)
+            .map(|(p, f)| {
+                let q = hm * glam::DVec3::new(p.x, p.y, 1.0);
+                (DVec2::new(q.x / q.z, q.y / q.z) - *f).length()
+            })
+            .collect();
+        let mut sorted = res.clone();
+        sorted.sort_by(f64::total_cmp);
+        let limit = (4.0 * sorted[sorted.len() / 2]).max(0.5);
+        let mut dropped = false;
+        for (&i, r) in idx.iter().zip(&res) {
+            if *r > limit {
+                found[i] = None;
+                dropped = true;
+            }
+        }
+        if !dropped {
+            break;
+        }
+    }
+    found
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::camera::{CameraModel, Intrinsics};
-    use crate::synth::{Checkerboard, render_checkerboard};
+    use crate::synth::{render_checkerboard, Checkerboard};
     use glam::{DMat3, DVec3};
 
     #[test]
@@ -292,6 +625,86 @@ mod tests {
         }
         let rms = (sq / truth.len() as f64).sqrt();
         assert!(rms < 0.1, "corner RMS {rms} px");
+    }
+
+    /// The lowest camera of the rig (12.9 deg elevation) at 2x binning: squares
+    /// 6 px tall and 28 px wide, the board turned so one axis runs nearly along
+    /// the line of sight.
+    #[test]
+    fn corners_of_a_grazing_board() {
+        let intr = Intrinsics {
+            fx: 2560.0,
+            fy: 2560.0,
+            cx: 255.5,
+            cy: 191.5,
+            k1: 0.0,
+            k2: 0.0,
+        };
+        let e = 12.86f64.to_radians();
+        let eye = DVec3::new(e.cos(), 0.0, e.sin()) * 450.0;
+        let cam = CameraModel::look_at(eye, DVec3::ZERO, DVec3::Z, intr);
+        let board = Checkerboard {
+            squares_x: 12,
+            squares_y: 12,
+            square_mm: 5.0,
+        };
+        for theta in [0.2f64, 1.25, 2.29, 3.34] {
+            let rot = DMat3::from_rotation_z(theta);
+            let img = render_checkerboard(&cam, 512, 384, &board, rot, DVec3::ZERO, 0.5, 3);
+            let truth: Vec<DVec2> = board
+                .corners()
+                .iter()
+                .map(|c| cam.project(rot * *c).unwrap())
+                .collect();
+            let predicted: Vec<DVec2> = truth.iter().map(|t| *t + DVec2::new(3.0, -1.0)).collect();
+            let axes: Vec<(DVec2, DVec2)> = board
+                .corners()
+                .iter()
+                .map(|c| {
+                    let p = cam.project(rot * *c).unwrap();
+                    let ex = cam.project(rot * (*c + DVec3::X * 5.0)).unwrap() - p;
+                    let ey = cam.project(rot * (*c + DVec3::Y * 5.0)).unwrap() - p;
+                    (ex, ey)
+                })
+                .collect();
+            let squares: Vec<(DVec2, bool)> = (0..144)
+                .map(|k| {
+                    let c = DVec3::new(
+                        (k % 12) as f64 * 5.0 - 27.5,
+                        (k / 12) as f64 * 5.0 - 27.5,
+                        0.0,
+                    );
+                    let bright = board.albedo(c.x, c.y).unwrap() > 0.5;
+                    (
+                        cam.project(rot * c).unwrap() + DVec2::new(3.0, -1.0),
+                        bright,
+                    )
+                })
+                .collect();
+            let found = detect_board(
+                &img.channel_f32(0),
+                512,
+                384,
+                &predicted,
+                &axes,
+                &squares,
+                6.0,
+            )
+            .unwrap();
+            let (mut sq, mut n) = (0.0, 0);
+            for (f, t) in found.iter().zip(&truth) {
+                if let Some(f) = f {
+                    sq += (*f - *t).length_squared();
+                    n += 1;
+                }
+            }
+            let rms = (sq / n.max(1) as f64).sqrt();
+            eprintln!("theta {theta}: {n} corners, rms {rms:.3} px");
+            assert!(
+                n > 90 && rms < 0.1,
+                "theta {theta}: {n} corners, RMS {rms} px"
+            );
+        }
     }
 
     #[test]

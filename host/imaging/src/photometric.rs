@@ -102,6 +102,93 @@ pub fn laser_plane_angle(
     Ok(dh.atan2(d))
 }
 
+/// Sub-pixel centres of a stripe running along y of a rectified image: for
+/// every texel row whose y passes `keep`, the centroid in x of channel `c`
+/// above a fifth of the row's peak, within 1.5 mm of the peak. Rows whose peak
+/// is below a tenth of the brightest are skipped. Returns (x, y) points, mm.
+pub fn stripe_centres(
+    rect: &crate::image::ImageF,
+    c: usize,
+    grid: &crate::rectify::Grid,
+    keep: impl Fn(f64) -> bool,
+) -> Vec<DVec2> {
+    let rows: Vec<usize> = (0..rect.height)
+        .filter(|&j| keep(grid.texel_centre(0, j).y))
+        .collect();
+    let peak = |j: usize| {
+        (0..rect.width)
+            .map(|i| (i, rect.get(i, j, c)))
+            .filter(|(_, v)| v.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    let brightest = rows
+        .iter()
+        .filter_map(|&j| peak(j))
+        .fold(0f32, |a, (_, v)| a.max(v));
+    let reach = (1.5 / grid.texel_mm).ceil() as isize;
+    let mut out = Vec::new();
+    for &j in &rows {
+        let Some((ip, vp)) = peak(j) else { continue };
+        if !(vp > 0.1 * brightest) {
+            continue;
+        }
+        let floor = 0.2 * vp;
+        let (mut sw, mut sx) = (0.0, 0.0);
+        let mut complete = true;
+        for di in -reach..=reach {
+            let i = ip as isize + di;
+            if i < 0 || i >= rect.width as isize {
+                complete = false;
+                continue;
+            }
+            let v = rect.get(i as usize, j, c);
+            if !v.is_finite() {
+                complete = false;
+                continue;
+            }
+            let w = (v - floor).max(0.0) as f64;
+            sw += w;
+            sx += w * grid.texel_centre(i as usize, j).x;
+        }
+        if complete && sw > 0.0 {
+            out.push(DVec2::new(sx / sw, grid.texel_centre(0, j).y));
+        }
+    }
+    out
+}
+
+/// Perpendicular offset between two parallel stripes given as centre points
+/// (x, y) on two planes (the stripe runs roughly along y): one slope and two
+/// intercepts x = a + b y by least squares, then (a_high - a_low) across the
+/// common direction, signed positive towards `towards` (sample xy).
+pub fn parallel_offset(low: &[DVec2], high: &[DVec2], towards: DVec2) -> Result<f64> {
+    if low.len() < 3 || high.len() < 3 {
+        return Err(Error::Input(format!(
+            "{} and {} stripe centres on the two planes",
+            low.len(),
+            high.len()
+        )));
+    }
+    let mean = |p: &[DVec2]| p.iter().copied().sum::<DVec2>() / p.len() as f64;
+    let (ml, mh) = (mean(low), mean(high));
+    let (mut sxy, mut syy) = (0.0, 0.0);
+    for (pts, m) in [(low, ml), (high, mh)] {
+        for p in pts {
+            sxy += (p.y - m.y) * (p.x - m.x);
+            syy += (p.y - m.y) * (p.y - m.y);
+        }
+    }
+    if !(syy > 0.0) {
+        return Err(Error::Input("stripe centres span no length".into()));
+    }
+    let b = sxy / syy;
+    let (al, ah) = (ml.x - b * ml.y, mh.x - b * mh.y);
+    // Unit normal of the direction (b, 1), towards the laser.
+    let n = DVec2::new(1.0, -b).normalize();
+    let n = if n.dot(towards) < 0.0 { -n } else { n };
+    Ok(DVec2::new(ah - al, 0.0).dot(n))
+}
+
 /// The direction of the perpendicular offset from `low` to `high` (unit, sample xy):
 /// with the angle it gives the plane's normal.
 pub fn stripe_shift_direction(low: &StripeLine, high: &StripeLine) -> DVec2 {

@@ -10,8 +10,8 @@ use sim_light::sample::SceneDesc;
 use sim_light::{Illumination, LaserOn, RigTruth, SimQuality, World};
 
 use crate::calibration::{Calibration, LampCal, LaserCal, Turntable};
-use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
-use crate::corners::detect_checkerboard;
+use crate::camera::{rodrigues, rodrigues_inv, CameraModel, Intrinsics};
+use crate::corners::detect_board;
 use crate::hdr::{self, MergeOptions};
 use crate::image::{Image8, ImageF};
 use crate::photometric;
@@ -56,6 +56,23 @@ pub struct SimCalibrator {
 }
 
 const SENSOR_GAIN: f64 = 1.0;
+
+/// Mitsunaga-Nayar on the sim's brackets: the shutter times are exact, so
+/// the exposure ratios are not re-estimated (set free, they absorb the
+/// noise's bias and the curve is off by 1-2 %), and 20 000 pixels are sampled.
+fn mn_options() -> MnOptions {
+    MnOptions {
+        refine_ratios: false,
+        samples: 20_000,
+        ..MnOptions::default()
+    }
+}
+
+/// Lamp photons per channel of a checkerboard frame, at least.
+const GEOMETRY_PHOTONS: u64 = 400_000;
+
+/// Light-arc (and turntable) angle of the laser-plane measurement, radians.
+const LASER_ARC: f64 = 30.0 * PI / 180.0;
 
 impl SimCalibrator {
     pub fn new(seed: u64, quality: SimQuality) -> Self {
@@ -174,7 +191,7 @@ impl SimCalibrator {
             let mut curves = Vec::new();
             let mut worst = 0.0f64;
             for c in 0..3 {
-                let fit = response::fit_mitsunaga_nayar(&b, c, MnOptions::default())?;
+                let fit = response::fit_mitsunaga_nayar(&b, c, mn_options())?;
                 let truth = self.rig.cameras[k].response.clone();
                 // The true inverse response: m with I(m) = Z / 255, by bisection.
                 let inv = |z: f64| {
@@ -233,8 +250,28 @@ impl SimCalibrator {
         hdr::merge(&refs, exposures, &resp, MergeOptions::default())
     }
 
+    /// How the checkerboard frames are simulated: at most 2x binned (the lowest
+    /// camera's squares are 6 px tall there, 3 px at 4x) and with at least
+    /// `GEOMETRY_PHOTONS` per channel (Monte Carlo noise limits the corners).
+    pub fn geometry_quality(&self) -> SimQuality {
+        let mut q = self.quality;
+        q.downscale = q.downscale.min(2);
+        q.lamp_photons = q.lamp_photons.max(GEOMETRY_PHOTONS);
+        q
+    }
+
     /// Intrinsics, distortion and poses (Zhang), turntable axis, from the checkerboard.
     pub fn geometry(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let q = self.geometry_quality();
+        if q != self.quality {
+            let sim = SimCalibrator {
+                rig: self.rig.clone(),
+                quality: q,
+                seed: self.seed,
+                cameras: self.cameras.clone(),
+            };
+            return sim.geometry(cal, rows);
+        }
         let world = self.world("checkerboard")?;
         let thetas: Vec<f64> = (0..6).map(|i| i as f64 * PI / 3.0 + 0.2).collect();
         let b = self.binning() as f64;
@@ -243,6 +280,7 @@ impl SimCalibrator {
             .flat_map(|j| (-5..=5).map(move |i| DVec2::new(i as f64 * 5.0, j as f64 * 5.0)))
             .collect();
         let mut per_cam: Vec<Vec<PlanarView>> = vec![Vec::new(); self.cameras.len()];
+        let mut per_cam_theta: Vec<Vec<f64>> = vec![Vec::new(); self.cameras.len()];
         for (vi, &theta) in thetas.iter().enumerate() {
             let frames =
                 self.capture(&world, &self.lamp_illum(theta, 7), &[0.03], 100 + vi as u64)?;
@@ -282,9 +320,30 @@ impl SimCalibrator {
                     (Some((a, o)), Some((c, _))) => (a - o).length().min((c - o).length()),
                     _ => continue,
                 };
+                // The 12 x 12 squares' centres and colours (bright where floor(x/5) + floor(y/5) is odd).
+                let squares: Vec<(DVec2, bool)> = (-6..6)
+                    .flat_map(|j: i32| (-6..6).map(move |i: i32| (i, j)))
+                    .filter_map(|(i, j)| {
+                        let c = DVec3::new((i as f64 + 0.5) * 5.0, (j as f64 + 0.5) * 5.0, 0.0);
+                        nominal
+                            .project(rz * c)
+                            .map(|q| (q, (i + j).rem_euclid(2) == 1))
+                    })
+                    .collect();
+                // The board's axes at each corner, as image vectors to the next corners.
+                let axes: Vec<(DVec2, DVec2)> = visible
+                    .iter()
+                    .map(|&i| {
+                        let p = DVec3::new(board[i].x, board[i].y, 0.0);
+                        let at = |d: DVec3| nominal.project(rz * (p + d)).unwrap_or_default();
+                        let o = at(DVec3::ZERO);
+                        (at(DVec3::X * 5.0) - o, at(DVec3::Y * 5.0) - o)
+                    })
+                    .collect();
                 let gray = img.gray_f32();
-                let Ok(found) = detect_checkerboard(&gray, img.width, img.height, &pts, square_px)
-                else {
+                let Ok(found) = detect_board(
+                    &gray, img.width, img.height, &pts, &axes, &squares, square_px,
+                ) else {
                     continue;
                 };
                 let mut v = PlanarView {
@@ -299,6 +358,7 @@ impl SimCalibrator {
                 }
                 if v.object.len() >= 12 {
                     per_cam[ci].push(v);
+                    per_cam_theta[ci].push(theta);
                 }
             }
         }
@@ -328,6 +388,8 @@ impl SimCalibrator {
                 fix_principal_point: true,
                 centre_distance: Some((g.cameras[k].distance, 1.0)),
                 initial_focal: Some(g.sensor.focal_px / b),
+                // The lens's centring tolerance, ~4 px at full resolution.
+                principal_sd: Some(4.0 / b),
             };
             let res = match zhang::calibrate(views, opts) {
                 Ok(r) => r,
@@ -344,7 +406,7 @@ impl SimCalibrator {
                 }
             };
             // World pose: views are sample -> camera at turntable theta_i; world = Rz(theta) sample.
-            let view_thetas: Vec<f64> = thetas.iter().copied().take(views.len()).collect();
+            let view_thetas = &per_cam_theta[ci];
             let mut q_sum = glam::DVec4::ZERO;
             let mut t_sum = DVec3::ZERO;
             let mut q0: Option<DQuat> = None;
@@ -456,7 +518,10 @@ impl SimCalibrator {
         let exposures = [0.005, 0.02, 0.08];
         let brackets = self.capture(&world, &self.lamp_illum(0.0, 7), &exposures, 2)?;
         let patch = 9.0;
-        let grid = Grid::centred(54, 1.0);
+        // Texels (0.1 mm) finer than the pixels, so a patch's mean integrates
+        // every pixel of it: the same photons for every camera (the Monte Carlo
+        // noise cancels in the ratios) rather than ~20 point samples of it.
+        let grid = Grid::centred(540, 0.1);
         let mut means = Vec::new();
         let mut measured = Vec::new();
         for (&k, frames) in self.cameras.iter().zip(&brackets) {
@@ -573,7 +638,7 @@ impl SimCalibrator {
                 .remove(0)
             };
             let hdr = self.merged(cal, k, &frames, &exposures)?;
-            let grid = Grid::centred(20, 1.0);
+            let grid = Grid::centred(200, 0.1);
             let rect =
                 rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &gain.map(|x| x as f32));
             let mut l = [0.0; 3];
@@ -639,14 +704,19 @@ impl SimCalibrator {
             cameras: vec![k_geo],
         };
         let mut angles = Vec::new();
-        // Two-height target (y < 0 low, y >= 0 high): the stripe along y at arc 0 crosses the step.
+        // Two-height target (sample y < 0 low, y >= 0 high). The simulated stripe is
+        // infinitely thin, so its image is a one-pixel line; along world y (light arc
+        // at 0) it runs along the image rows and its sub-pixel position is lost. With
+        // the light arc turned by LASER_ARC the stripe crosses the rows, and the
+        // turntable turned by as much keeps it along sample y, across the step.
         let mut world = self.world("two-height")?;
-        let theta = 0.0;
+        let (arc, theta) = (LASER_ARC, LASER_ARC);
+        let axis = cal.axis();
         for &elev in &g.laser.positions {
             world.set_laser_mount(elev);
             let illum = Illumination {
                 turntable_rad: theta,
-                light_arc_rad: 0.0,
+                light_arc_rad: arc,
                 galvo_rad: 0.0,
                 laser: Some(LaserOn {
                     channel: 0,
@@ -660,50 +730,31 @@ impl SimCalibrator {
                 .capture(&world, &illum, &exposures, 400 + (elev * 1000.0) as u64)?
                 .remove(0);
             let hdr = self.merged(cal, k_geo, &frames, &exposures)?;
-            // 40 mm: at 30 deg the stripe on the high step is 17 mm from the low one.
-            let grid = Grid::centred(400, 0.1);
-            let mut lines = Vec::new();
+            // 56 mm: at 30 deg the stripe on the high step is 17 mm from the low one,
+            // plus the galvo's zero offset (~1 mm), plus the centroid's 1.5 mm reach.
+            let grid = Grid::centred(560, 0.1);
+            let mut halves = Vec::new();
             for (z, keep_low) in [(0.0, true), (10.0, false)] {
-                let mut rect = rectify::rectify_at_height(
+                let rect = rectify::rectify_at_height(
                     &hdr,
                     &cam_geo,
-                    cal.axis(),
+                    axis,
                     theta,
                     &grid,
                     &[1.0, 0.0, 0.0],
                     z,
                 );
-                // Keep only this step's half of the target (sample y < 0 low, y >= 0 high), away from the edge.
-                for j in 0..grid.height {
-                    for i in 0..grid.width {
-                        let p = grid.texel_centre(i, j);
-                        let mine = if keep_low { p.y < -2.0 } else { p.y > 2.0 };
-                        if !mine {
-                            rect.set(i, j, 0, f32::NAN);
-                        }
-                    }
-                }
-                let max = rect
-                    .data
-                    .iter()
-                    .step_by(3)
-                    .filter(|v| v.is_finite())
-                    .fold(0f32, |a, &b| a.max(b));
-                lines.push(rectify::fit_stripe_line(&rect, 0, &grid, 0.3 * max)?);
+                // Only this step's half of the target, away from the edge.
+                let mine = |y: f64| if keep_low { y < -2.0 } else { y > 2.0 };
+                halves.push(photometric::stripe_centres(&rect, 0, &grid, mine));
             }
             // Towards the laser, in the sample frame.
-            let az = g.light_arc_azimuth0;
+            let az = g.light_arc_azimuth0 + arc;
             let towards = DMat3::from_rotation_z(-theta) * DVec3::new(az.cos(), az.sin(), 0.0);
-            let (low, high) = (&lines[0], &lines[1]);
-            let n = DVec2::new(-low.dir.y, low.dir.x);
-            let n = if n.dot(towards.truncate()) < 0.0 {
-                -n
-            } else {
-                n
-            };
-            let d = (high.point - low.point).dot(n);
+            let d = photometric::parallel_offset(&halves[0], &halves[1], towards.truncate())
+                .map_err(|e| Error::Input(format!("laser at {:.0} deg: {e}", elev.to_degrees())))?;
             let angle = 10f64.atan2(d);
-            let geo = self.rig.laser_geometry(elev, 0.0, 0.0);
+            let geo = self.rig.laser_geometry(elev, arc, 0.0);
             let horiz = (geo.origin - geo.centre)
                 .truncate()
                 .dot(DVec2::new(az.cos(), az.sin()));

@@ -10,7 +10,7 @@
 
 use glam::{DMat3, DVec2, DVec3};
 
-use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
+use crate::camera::{rodrigues, rodrigues_inv, CameraModel, Intrinsics};
 use crate::linalg;
 use crate::lm;
 use crate::{Error, Result};
@@ -238,9 +238,17 @@ pub struct ZhangOptions {
     /// Prior on the distance from the camera centre to the board origin,
     /// (mm, standard deviation mm): the rig's mechanics. With a single board
     /// plane it fixes the focal length / distance trade-off of near-frontal views.
+    /// It is weighed against the corners by their scatter (the reprojection RMS
+    /// of a first fit), so oblique views, whose perspective does determine the
+    /// focal length, are not overruled by it.
     pub centre_distance: Option<(f64, f64)>,
     /// Focal length to start from when the views cannot give one (fronto-parallel).
     pub initial_focal: Option<f64>,
+    /// With `fix_principal_point`: let the principal point move from the image
+    /// centre under a prior of this standard deviation (px) instead of holding
+    /// it there. The flat board cannot find it, but a held-wrong principal
+    /// point biases the focal length of oblique views.
+    pub principal_sd: Option<f64>,
 }
 
 /// Calibrate one camera from views of a planar target.
@@ -307,15 +315,19 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
     for (r, t) in &poses {
         p.extend_from_slice(&[r.x, r.y, r.z, t.x, t.y, t.z]);
     }
+    let pp_prior = opts.principal_sd.filter(|sd| assumed && *sd > 0.0);
     let m_points: usize = views.iter().map(|v| 2 * v.object.len()).sum();
     let m = m_points
         + if opts.centre_distance.is_some() {
             views.len()
         } else {
             0
-        };
+        }
+        + if pp_prior.is_some() { 2 } else { 0 };
     let unpack = |p: &[f64]| -> Intrinsics {
-        let (fy, cx, cy) = if assumed {
+        let (fy, cx, cy) = if pp_prior.is_some() {
+            (p[0], p[2], p[3])
+        } else if assumed {
             (p[0], cx0, cy0)
         } else {
             (p[1], p[2], p[3])
@@ -334,6 +346,8 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
             k2,
         }
     };
+    // Pixels of residual per standard deviation of the prior: the corners' scatter.
+    let prior_px = std::sync::atomic::AtomicU64::new(1f64.to_bits());
     let residuals = |p: &[f64], out: &mut [f64]| {
         let k = unpack(p);
         let mut i = 0;
@@ -350,12 +364,17 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
             }
         }
         if let Some((d, sd)) = opts.centre_distance {
-            // One pixel of residual per standard deviation of the prior.
+            let w = f64::from_bits(prior_px.load(std::sync::atomic::Ordering::Relaxed));
             for vi in 0..views.len() {
                 let q = &p[6 + 6 * vi..12 + 6 * vi];
-                out[i] = (DVec3::new(q[3], q[4], q[5]).length() - d) / sd;
+                out[i] = w * (DVec3::new(q[3], q[4], q[5]).length() - d) / sd;
                 i += 1;
             }
+        }
+        if let Some(sd) = pp_prior {
+            let w = f64::from_bits(prior_px.load(std::sync::atomic::Ordering::Relaxed));
+            out[i] = w * (p[2] - cx0) / sd;
+            out[i + 1] = w * (p[3] - cy0) / sd;
         }
     };
     let steps: Vec<f64> = p
@@ -372,6 +391,15 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
     lm::minimise(&mut p, m, &steps, 200, &residuals);
     let mut r = vec![0.0; m];
     residuals(&p, &mut r);
+    if opts.centre_distance.is_some() || pp_prior.is_some() {
+        // Refit with the prior weighed by the corners' measured scatter
+        // (per coordinate), never more than one pixel per standard deviation.
+        let point_cost: f64 = r[..m_points].iter().map(|x| x * x).sum();
+        let scatter = (point_cost / m_points as f64).sqrt().clamp(1e-3, 1.0);
+        prior_px.store(scatter.to_bits(), std::sync::atomic::Ordering::Relaxed);
+        lm::minimise(&mut p, m, &steps, 200, &residuals);
+        residuals(&p, &mut r);
+    }
     let point_cost: f64 = r[..m_points].iter().map(|x| x * x).sum();
     let intrinsics = unpack(&p);
     let poses = (0..views.len())
@@ -392,7 +420,7 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
 mod tests {
     use super::*;
     use crate::corners::detect_checkerboard;
-    use crate::synth::{Checkerboard, render_checkerboard};
+    use crate::synth::{render_checkerboard, Checkerboard};
 
     fn truth() -> Intrinsics {
         Intrinsics {
@@ -483,6 +511,7 @@ mod tests {
             fix_principal_point: false,
             centre_distance: None,
             initial_focal: None,
+            principal_sd: None,
         };
         let cal = calibrate(&views, opts).unwrap();
         let fe = (cal.intrinsics.fx / k.fx - 1.0)
