@@ -10,6 +10,15 @@ mod cli;
 mod cmd;
 
 fn main() -> ExitCode {
+    // Output piped into a reader that quits early (`qhm fit ... | head`)
+    // ends qhm quietly, as for other Unix tools, instead of a panic in
+    // println!.
+    #[cfg(unix)]
+    // SAFETY: no other thread exists yet, and SIG_DFL installs no handler.
+    unsafe {
+        use nix::sys::signal::{SigHandler, Signal, signal};
+        let _ = signal(Signal::SIGPIPE, SigHandler::SigDfl);
+    }
     let cli = cli::Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(
