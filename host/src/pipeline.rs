@@ -29,7 +29,7 @@ impl Default for StripeWindow {
         StripeWindow {
             width_mm: 32.0,
             threshold: 0.3,
-            d_min: 0.5,
+            d_min: 0.0,
             d_max: 12.0,
         }
     }

@@ -8,7 +8,7 @@
 //! light that has entered; the specular part belongs to the LRF).
 
 use glam::Vec3;
-use qhm_model::profile::{Profile, fit_profile};
+use qhm_model::profile::{Norm, Profile, fit_profile};
 use sim_light::*;
 
 /// (I(d) profile, R, photons) of a smooth homogeneous slab with reduced
@@ -61,7 +61,7 @@ fn check(sigma_s: f64, sigma_a: f64, photons: u64) {
     let st = sigma_s + sigma_a;
     let a = sigma_s / st;
     let (profile, r) = mc_profile(sigma_s, sigma_a, photons, 7);
-    let fit = fit_profile(&profile, r, 1.3, None).unwrap();
+    let fit = fit_profile(&profile, r, 1.3, None, Norm::Poisson).unwrap();
     eprintln!(
         "s'_s {sigma_s} s_a {sigma_a}: R {r:.4}; a' {:.5} (true {a:.5}), s'_t {:.4} (true {st:.4}), range {:?}, residual {:.3e}",
         fit.alpha_prime, fit.sigma_t_prime, fit.range_mm, fit.residual

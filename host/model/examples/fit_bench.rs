@@ -8,7 +8,7 @@ use std::time::Instant;
 use qhm_model::DipoleParams;
 use qhm_model::dipole::{Dipole, total_reflectance};
 use qhm_model::fit::{FitOptions, fit_capture};
-use qhm_model::profile::{Profile, fit_profile};
+use qhm_model::profile::{Norm, Profile, fit_profile};
 use qhm_model::synth::{SynthSpec, write_synthetic};
 
 fn main() {
@@ -24,10 +24,10 @@ fn main() {
     );
     let r = total_reflectance(p.alpha_prime[0], 1.3);
     let t = Instant::now();
-    let fixed = fit_profile(&profile, r, 1.3, Some((1.0, 15.0))).expect("fit");
+    let fixed = fit_profile(&profile, r, 1.3, Some((1.0, 15.0)), Norm::Poisson).expect("fit");
     let search = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let auto = fit_profile(&profile, r, 1.3, None).expect("fit");
+    let auto = fit_profile(&profile, r, 1.3, None, Norm::Poisson).expect("fit");
     let with_range = t.elapsed().as_secs_f64();
     println!(
         "s'_t search, one channel, {} points: {:.3} s (true {:.4}, fitted {:.4})",

@@ -28,7 +28,7 @@ use crate::model::{
     EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
     Texture,
 };
-use crate::profile::{ChannelFit, Profile, fit_profile};
+use crate::profile::{ChannelFit, Norm, Profile, fit_profile};
 use crate::rectified::{Rectified, StripeEntry};
 
 /// Options of [`fit_capture`].
@@ -37,6 +37,8 @@ pub struct FitOptions {
     pub eta: f64,
     /// Distance range for the s'_t fit (None: automatic per channel).
     pub range: Option<(f64, f64)>,
+    /// Misfit of the s'_t search.
+    pub norm: Norm,
     /// Entrance table resolution.
     pub n_theta: usize,
     pub n_phi: usize,
@@ -49,6 +51,7 @@ impl Default for FitOptions {
         FitOptions {
             eta: dipole::DEFAULT_ETA,
             range: None,
+            norm: Norm::default(),
             n_theta: 10,
             n_phi: 24,
             bin_mm: None,
@@ -73,6 +76,23 @@ const SAME_LIGHT_DIR: f64 = 0.02;
 
 /// Directions are grouped when closer than this (radians).
 const SAME_DIR: f64 = 1e-3;
+
+/// Views within 10 degrees of the laser's mirror direction see its
+/// specular reflection on the stripe's core, which is surface, not
+/// subsurface, light.
+const SPECULAR_VIEW_COS: f64 = 0.984_807_753_012_208;
+
+/// The stripe's core: the laser line blurred by a camera pixel and the
+/// rectification's interpolation, a texel and a half either side.
+fn core_mm(grid: &crate::rectified::Grid) -> f64 {
+    1.5 * grid.texel_mm
+}
+
+/// Whether `s`'s view sees the laser's specular reflection.
+fn sees_specular(s: &StripeEntry) -> bool {
+    let (l, v) = (s.light_dir, s.view_dir);
+    -l[0] * v[0] - l[1] * v[1] + l[2] * v[2] > SPECULAR_VIEW_COS
+}
 
 fn dir_key(v: [f64; 3]) -> [i64; 3] {
     v.map(|x| (x / SAME_DIR).round() as i64)
@@ -204,6 +224,7 @@ pub fn fit_capture(
                 let img = data.read_image(&s.file)?;
                 let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average)
                     / s.flux_per_mm;
+                let skip = if sees_specular(s) { core_mm(&grid) } else { 0.0 };
                 let mut sum = vec![0.0; n_bins];
                 let mut dsum = vec![0.0; n_bins];
                 let mut count = vec![0u64; n_bins];
@@ -215,7 +236,7 @@ pub fn fit_capture(
                         }
                         let d = s.distance(grid.centre(i, j));
                         let b = (d / bin) as usize;
-                        if b < n_bins {
+                        if b < n_bins && d >= skip {
                             sum[b] += k * l;
                             dsum[b] += d;
                             count[b] += 1;
@@ -263,7 +284,7 @@ pub fn fit_capture(
         let mut range = opts.range;
         for _ in 0..6 {
             let r_used = r.min(1.0);
-            let f = fit_profile(&profile, r_used, opts.eta, range)
+            let f = fit_profile(&profile, r_used, opts.eta, range, opts.norm)
                 .map_err(|e| ModelError::Fit(format!("channel {c}: {e}")))?;
             range = Some((f.range_mm[0], f.range_mm[1]));
             let auto = fit
@@ -663,19 +684,21 @@ fn band_extent(s: &StripeEntry, grid: &crate::rectified::Grid) -> f64 {
     hi.min(-lo)
 }
 
-/// Outgoing radiance integrated across the stripe over |d| <= reach, per mm
-/// of line: Σ over texel-wide signed-distance bins of the bin's mean
-/// radiance (over its finite texels) times the bin width; bins with no
-/// finite texel (the masked core) add nothing.
+/// Outgoing radiance integrated across the stripe over core <= |d| <= reach,
+/// per mm of line: Σ over texel-wide signed-distance bins of the bin's mean
+/// radiance (over its finite texels) times the bin width. The core is left
+/// out of every image alike: the vertical references include views that see
+/// the laser's specular reflection there.
 fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reach: f64) -> f64 {
     let c = s.channel as usize;
     let bin = grid.texel_mm;
+    let core = core_mm(grid);
     let n = (2.0 * reach / bin).ceil() as usize;
     let (mut sum, mut count) = (vec![0.0; n], vec![0u32; n]);
     for j in 0..grid.height as usize {
         for i in 0..grid.width as usize {
             let d = s.signed_distance(grid.centre(i, j));
-            if d.abs() > reach {
+            if d.abs() > reach || d.abs() < core {
                 continue;
             }
             let b = (((d + reach) / bin) as usize).min(n - 1);

@@ -1,7 +1,13 @@
 //! The laser-stripe profile fit of paper section 4.2: a' from the total
 //! diffuse reflectance R by inversion, then s'_t alone by a coarse-to-fine
-//! search over (0, 10] mm^-1 minimising ||I_D(d) - I(d)||² (eq. 6) over a
-//! distance range chosen clear of the stripe's near field and above the noise.
+//! search over (0, 10] mm^-1 minimising the misfit between I_D(d) and I(d)
+//! over a distance range chosen clear of the stripe's near field and above
+//! the noise. The misfit is by default Poisson-weighted, Σ (I_D - I)² / Ĩ
+//! with Ĩ the smoothed profile (photon counts have a variance that grows as
+//! I); the paper's eq. 6, the plain ||I_D - I||², is [`Norm::Absolute`]. On
+//! Monte Carlo profiles the plain norm is ruled by the nearest points, where
+//! the dipole's shape is worst, and s'_t moves by 10-20 % with the range
+//! (docs/model-format.md).
 //!
 //! A profile I(d) is the outgoing exitance along lines at distance d from a
 //! straight stripe, per unit incident flux per mm of stripe (mm^-1), on a flat
@@ -17,6 +23,18 @@ use crate::dipole::{self, SIGMA_T_PRIME_MAX, ScaledStripe};
 
 /// The CSV header of a profile file.
 pub const CSV_HEADER: &str = "distance_mm,intensity_per_mm";
+
+/// How the s'_t search measures the misfit between I_D(d) and I(d).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Norm {
+    /// Σ (I_D - I)² / Ĩ, Ĩ the profile smoothed (a quadratic in ln I): the
+    /// chi-square of photon counts, whose variance grows as I.
+    #[default]
+    Poisson,
+    /// Σ (I_D - I)², the paper's eq. 6.
+    Absolute,
+}
 
 /// Smallest s'_t considered, mm^-1 (s'_t = 0 has no dipole).
 pub const SIGMA_T_PRIME_MIN: f64 = 0.01;
@@ -153,7 +171,8 @@ pub struct ProfileFit {
     pub sigma_t_prime: f64,
     pub sigma_s_prime: f64,
     pub sigma_a: f64,
-    /// Relative RMS misfit sqrt(Σ(I_D - I)² / Σ I²) over the range.
+    /// Relative RMS misfit over the range, sqrt(Σ w (I_D - I)² / Σ w I²)
+    /// with the norm's weights w (1 / Ĩ for Poisson, 1 for absolute).
     pub residual: f64,
     /// The distance range used, mm.
     pub range_mm: [f64; 2],
@@ -178,6 +197,7 @@ pub fn fit_profile(
     reflectance: f64,
     eta: f64,
     range: Option<(f64, f64)>,
+    norm: Norm,
 ) -> Result<ProfileFit, ModelError> {
     let alpha_prime = dipole::alpha_prime_from_reflectance(reflectance, eta)?;
     let (range, auto) = match range {
@@ -190,7 +210,7 @@ pub fn fit_profile(
             }
             (r, false)
         }
-        None => (auto_range(profile, alpha_prime, eta)?, true),
+        None => (auto_range(profile, alpha_prime, eta, norm)?, true),
     };
     let idx = profile.in_range(range);
     if idx.len() < 3 {
@@ -201,7 +221,7 @@ pub fn fit_profile(
             range.1
         )));
     }
-    let (sigma_t_prime, residual) = search_sigma_t_prime(profile, &idx, alpha_prime, eta);
+    let (sigma_t_prime, residual) = search_sigma_t_prime(profile, &idx, alpha_prime, eta, norm);
     Ok(ProfileFit {
         alpha_prime,
         sigma_t_prime,
@@ -219,7 +239,12 @@ pub fn fit_profile(
 /// where the dipole is known to be wrong: beyond twice the half-maximum
 /// distance and beyond 2 mean free paths 2/s'_t (s'_t from a first fit over
 /// everything beyond the half maximum; two refinements).
-pub fn auto_range(profile: &Profile, alpha_prime: f64, eta: f64) -> Result<(f64, f64), ModelError> {
+pub fn auto_range(
+    profile: &Profile,
+    alpha_prime: f64,
+    eta: f64,
+    norm: Norm,
+) -> Result<(f64, f64), ModelError> {
     let d = &profile.distance_mm;
     let i = &profile.intensity;
     let (peak_k, peak) = i
@@ -251,7 +276,7 @@ pub fn auto_range(profile: &Profile, alpha_prime: f64, eta: f64) -> Result<(f64,
     let mut d_min = d_min0;
     for _ in 0..2 {
         let idx = profile.in_range((d_min, d_max));
-        let (st, _) = search_sigma_t_prime(profile, &idx, alpha_prime, eta);
+        let (st, _) = search_sigma_t_prime(profile, &idx, alpha_prime, eta, norm);
         let want = d_min0.max(2.0 / st);
         // Keep at least 5 points: shrink towards the far end only while possible.
         d_min = if enough(want) { want } else { d_min };
@@ -259,13 +284,20 @@ pub fn auto_range(profile: &Profile, alpha_prime: f64, eta: f64) -> Result<(f64,
     Ok((d_min, d_max))
 }
 
-/// Sum of squared differences between I_D and the profile at `idx`.
-fn misfit(profile: &Profile, idx: &[usize], table: &ScaledStripe, sigma_t_prime: f64) -> f64 {
+/// Weighted sum of squared differences between I_D and the profile at `idx`.
+fn misfit(
+    profile: &Profile,
+    idx: &[usize],
+    weight: &[f64],
+    table: &ScaledStripe,
+    sigma_t_prime: f64,
+) -> f64 {
     let w = profile.bin_width_mm;
     idx.iter()
-        .map(|&k| {
+        .zip(weight)
+        .map(|(&k, w8)| {
             let d = profile.distance_mm[k];
-            let model = if w > 0.0 {
+            let model: f64 = if w > 0.0 {
                 crate::quad::GL5
                     .iter()
                     .map(|&(x, wt)| 0.5 * wt * table.eval(d + 0.5 * w * x, sigma_t_prime))
@@ -273,10 +305,74 @@ fn misfit(profile: &Profile, idx: &[usize], table: &ScaledStripe, sigma_t_prime:
             } else {
                 table.eval(d, sigma_t_prime)
             };
-            let e = model - profile.intensity[k];
-            e * e
+            w8 * (model - profile.intensity[k]).powi(2)
         })
         .sum()
+}
+
+/// Each point's weight in the misfit. Poisson: 1 / Ĩ(d), Ĩ the profile
+/// smoothed by a quadratic in ln I(d) over the points (not the noisy I
+/// itself, whose low outliers would weigh most and pull the fit down).
+fn misfit_weights(profile: &Profile, idx: &[usize], norm: Norm) -> Vec<f64> {
+    let pts: Vec<(f64, f64)> = idx
+        .iter()
+        .map(|&k| (profile.distance_mm[k], profile.intensity[k]))
+        .collect();
+    match norm {
+        Norm::Absolute => vec![1.0; pts.len()],
+        Norm::Poisson => {
+            let c = log_quadratic(&pts);
+            pts.iter()
+                .map(|&(d, _)| (-(c[0] + c[1] * d + c[2] * d * d)).exp())
+                .collect()
+        }
+    }
+}
+
+/// Least-squares ln I = c0 + c1 d + c2 d² over the points with I > 0 (a
+/// straight line with fewer than 4 such points).
+fn log_quadratic(pts: &[(f64, f64)]) -> [f64; 3] {
+    let pos: Vec<(f64, f64)> = pts
+        .iter()
+        .filter(|p| p.1 > 0.0)
+        .map(|&(d, i)| (d, i.ln()))
+        .collect();
+    let terms = if pos.len() >= 4 { 3 } else { 2 };
+    let mut a = [[0.0f64; 3]; 3];
+    let mut b = [0.0f64; 3];
+    for &(d, y) in &pos {
+        let x = [1.0, d, d * d];
+        for r in 0..terms {
+            b[r] += x[r] * y;
+            for c in 0..terms {
+                a[r][c] += x[r] * x[c];
+            }
+        }
+    }
+    // Gaussian elimination with partial pivoting on the terms x terms system.
+    let mut sol = [0.0f64; 3];
+    for col in 0..terms {
+        let piv = (col..terms)
+            .max_by(|&p, &q| a[p][col].abs().total_cmp(&a[q][col].abs()))
+            .unwrap_or(col);
+        a.swap(col, piv);
+        b.swap(col, piv);
+        if a[col][col].abs() < 1e-300 {
+            return [pos.first().map_or(0.0, |p| p.1), 0.0, 0.0];
+        }
+        for r in col + 1..terms {
+            let f = a[r][col] / a[col][col];
+            for c in col..terms {
+                a[r][c] -= f * a[col][c];
+            }
+            b[r] -= f * b[col];
+        }
+    }
+    for r in (0..terms).rev() {
+        let s: f64 = (r + 1..terms).map(|c| a[r][c] * sol[c]).sum();
+        sol[r] = (b[r] - s) / a[r][r];
+    }
+    sol
 }
 
 /// Coarse-to-fine search of s'_t over [SIGMA_T_PRIME_MIN, 10]: a 0.05 mm^-1
@@ -287,6 +383,7 @@ pub fn search_sigma_t_prime(
     idx: &[usize],
     alpha_prime: f64,
     eta: f64,
+    norm: Norm,
 ) -> (f64, f64) {
     let d_max = idx
         .iter()
@@ -294,7 +391,8 @@ pub fn search_sigma_t_prime(
         .fold(0.0, f64::max)
         + profile.bin_width_mm;
     let table = ScaledStripe::new(alpha_prime, eta, SIGMA_T_PRIME_MAX * d_max * 1.01);
-    let eval = |s: f64| misfit(profile, idx, &table, s);
+    let weight = misfit_weights(profile, idx, norm);
+    let eval = |s: f64| misfit(profile, idx, &weight, &table, s);
     let best_of = |grid: Vec<f64>| {
         grid.into_par_iter().map(|s| (s, eval(s))).reduce(
             || (f64::NAN, f64::INFINITY),
@@ -320,8 +418,12 @@ pub fn search_sigma_t_prime(
         }
         step = fine;
     }
-    let norm: f64 = idx.iter().map(|&k| profile.intensity[k].powi(2)).sum();
-    (best.0, (best.1 / norm.max(f64::MIN_POSITIVE)).sqrt())
+    let norm_sq: f64 = idx
+        .iter()
+        .zip(&weight)
+        .map(|(&k, w8)| w8 * profile.intensity[k].powi(2))
+        .sum();
+    (best.0, (best.1 / norm_sq.max(f64::MIN_POSITIVE)).sqrt())
 }
 
 #[cfg(test)]
@@ -359,7 +461,7 @@ mod tests {
         for &(a, st) in &[(0.99, 1.0), (0.95, 2.5), (0.999, 0.7), (0.9, 6.0)] {
             let r = dipole::total_reflectance(a, 1.3);
             let p = synthetic(a, st, 0.0, 1);
-            let fit = fit_profile(&p, r, 1.3, None).unwrap();
+            let fit = fit_profile(&p, r, 1.3, None, Norm::Poisson).unwrap();
             assert!((fit.alpha_prime - a).abs() < 1e-10);
             assert!(
                 ((fit.sigma_t_prime - st) / st).abs() < 1e-4,
@@ -374,7 +476,7 @@ mod tests {
         let (a, st) = (0.98, 1.5);
         let r = dipole::total_reflectance(a, 1.3);
         let p = synthetic(a, st, 0.03, 7);
-        let base = fit_profile(&p, r, 1.3, None).unwrap();
+        let base = fit_profile(&p, r, 1.3, None, Norm::Poisson).unwrap();
         assert!(base.auto_range);
         assert!(((base.sigma_t_prime - st) / st).abs() < 0.03, "{base:?}");
         let [lo, hi] = base.range_mm;
@@ -385,7 +487,7 @@ mod tests {
             (0.0, 0.5),
             (0.3, -0.5),
         ] {
-            let f = fit_profile(&p, r, 1.3, Some((lo + dl, hi + dh))).unwrap();
+            let f = fit_profile(&p, r, 1.3, Some((lo + dl, hi + dh)), Norm::Poisson).unwrap();
             let rel = (f.sigma_t_prime - base.sigma_t_prime).abs() / base.sigma_t_prime;
             assert!(
                 rel < 0.02,
@@ -398,10 +500,31 @@ mod tests {
     }
 
     #[test]
+    fn poisson_weights_follow_the_smoothed_profile_not_its_outliers() {
+        // ln I = 1 - 0.5 d + 0.01 d², exactly recovered; one point dropped to
+        // a tenth keeps nearly the weight of its neighbours.
+        let pts: Vec<(f64, f64)> = (0..20)
+            .map(|k| {
+                let d = 1.0 + 0.5 * k as f64;
+                (d, (1.0 - 0.5 * d + 0.01 * d * d).exp())
+            })
+            .collect();
+        let c = log_quadratic(&pts);
+        assert!((c[0] - 1.0).abs() < 1e-9 && (c[1] + 0.5).abs() < 1e-9 && (c[2] - 0.01).abs() < 1e-9);
+        let mut p = Profile::new(pts.iter().copied(), 0.0);
+        p.intensity[10] *= 0.1;
+        let idx: Vec<usize> = (0..20).collect();
+        let w = misfit_weights(&p, &idx, Norm::Poisson);
+        assert!(w[10] < 2.0 * w[9] && w[10] > 0.5 * w[11], "{:?}", &w[8..13]);
+        assert!(w[19] > w[0], "weights grow as I falls");
+        assert_eq!(misfit_weights(&p, &idx, Norm::Absolute), vec![1.0; 20]);
+    }
+
+    #[test]
     fn auto_range_avoids_near_field_and_noise() {
         let (a, st) = (0.98, 1.5);
         let p = synthetic(a, st, 0.05, 3);
-        let (lo, hi) = auto_range(&p, a, 1.3).unwrap();
+        let (lo, hi) = auto_range(&p, a, 1.3, Norm::Poisson).unwrap();
         assert!(lo >= 2.0 / st - 0.2, "near end {lo}");
         assert!(hi > lo + 1.0 && hi <= 19.9, "far end {hi}");
     }
@@ -444,8 +567,8 @@ mod tests {
     #[test]
     fn bad_range_and_reflectance_are_errors() {
         let p = synthetic(0.99, 1.0, 0.0, 1);
-        assert!(fit_profile(&p, 0.5, 1.3, Some((2.0, 1.0))).is_err());
-        assert!(fit_profile(&p, 0.5, 1.3, Some((50.0, 60.0))).is_err());
-        assert!(fit_profile(&p, 1.5, 1.3, None).is_err());
+        assert!(fit_profile(&p, 0.5, 1.3, Some((2.0, 1.0)), Norm::Poisson).is_err());
+        assert!(fit_profile(&p, 0.5, 1.3, Some((50.0, 60.0)), Norm::Poisson).is_err());
+        assert!(fit_profile(&p, 1.5, 1.3, None, Norm::Poisson).is_err());
     }
 }

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use clap::Args;
 use qhm_model::dipole::DEFAULT_ETA;
+use qhm_model::profile::Norm;
 use qhm_model::{Profile, fit_profile};
 
 #[derive(Args, Debug)]
@@ -24,9 +25,29 @@ pub struct FitProfileArgs {
     /// Distance range MIN:MAX in mm (default: automatic, printed).
     #[arg(long, value_parser = parse_range)]
     pub range: Option<(f64, f64)>,
+    /// Misfit of the s'_t search: Poisson-weighted Σ(I_D - I)²/Ĩ (Ĩ the
+    /// smoothed profile), or absolute Σ(I_D - I)² (the paper's eq. 6).
+    #[arg(long, value_enum, default_value_t = NormArg::Poisson)]
+    pub norm: NormArg,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--norm` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum NormArg {
+    Poisson,
+    Absolute,
+}
+
+impl From<NormArg> for Norm {
+    fn from(n: NormArg) -> Norm {
+        match n {
+            NormArg::Poisson => Norm::Poisson,
+            NormArg::Absolute => Norm::Absolute,
+        }
+    }
 }
 
 fn parse_range(s: &str) -> Result<(f64, f64), String> {
@@ -49,7 +70,7 @@ fn parse_range(s: &str) -> Result<(f64, f64), String> {
 
 pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
     let profile = Profile::read_csv(&args.profile)?;
-    let fit = fit_profile(&profile, args.reflectance, args.eta, args.range)
+    let fit = fit_profile(&profile, args.reflectance, args.eta, args.range, args.norm.into())
         .with_context(|| format!("fitting {}", args.profile.display()))?;
     if args.json {
         let v = serde_json::json!({
@@ -95,6 +116,9 @@ pub struct FitArgs {
     /// Distance range MIN:MAX in mm for the s'_t fit (default: automatic per channel).
     #[arg(long, value_parser = parse_range)]
     pub range: Option<(f64, f64)>,
+    /// Misfit of the s'_t search (see `qhm fit-profile --help`).
+    #[arg(long, value_enum, default_value_t = NormArg::Poisson)]
+    pub norm: NormArg,
     /// Compress the LRF to this many PCA components (default: uncompressed).
     #[arg(long)]
     pub lrf_components: Option<usize>,
@@ -104,6 +128,7 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
     let opts = qhm_model::fit::FitOptions {
         eta: args.eta,
         range: args.range,
+        norm: args.norm.into(),
         ..Default::default()
     };
     let t = std::time::Instant::now();

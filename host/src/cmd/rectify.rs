@@ -25,8 +25,9 @@ pub struct RectifyArgs {
     /// Stripe texels: intensity threshold as a fraction of the brightest texel.
     #[arg(long, default_value_t = 0.3)]
     pub threshold: f64,
-    /// Keep stripe texels at least this far from the fitted line, mm.
-    #[arg(long, default_value_t = 0.5)]
+    /// Keep stripe texels at least this far from the fitted line, mm (0 keeps
+    /// the core, which the fit needs for R).
+    #[arg(long, default_value_t = 0.0)]
     pub d_min: f64,
     /// Keep stripe texels at most this far from the fitted line, mm.
     #[arg(long, default_value_t = 12.0)]
