@@ -288,12 +288,16 @@ pub struct SampleDesc {
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum TargetDesc {
     /// Squares alternating between two reflectances; a corner at the origin.
+    /// `height_mm` raises the board (on a spacer block of that thickness): its
+    /// top surface is at z = height_mm, in [0, 50] mm (default 0, on the turntable).
     Checkerboard {
         square_mm: f64,
         #[serde(default = "default_checker_albedo")]
         albedo: [f64; 2],
         #[serde(default = "default_target_size")]
         size_mm: f64,
+        #[serde(default)]
+        height_mm: f64,
     },
     /// 4 x 6 patches with reflectances `COLOUR_PATTERN`, centred.
     ColourPattern {
@@ -485,6 +489,7 @@ impl SceneDesc {
                     square_mm: 5.0,
                     albedo: default_checker_albedo(),
                     size_mm: 60.0,
+                    height_mm: 0.0,
                 },
             },
             "colour-pattern" => SceneDesc::Target {
@@ -621,6 +626,7 @@ impl SceneDesc {
                         square_mm,
                         albedo,
                         size_mm,
+                        height_mm,
                     } => {
                         if !(pos(*square_mm) && *square_mm <= 100.0) {
                             return bad("target.square_mm", "must be in (0, 100] mm");
@@ -630,6 +636,12 @@ impl SceneDesc {
                         }
                         if !pos(*size_mm) {
                             return bad("target.size_mm", "must be positive");
+                        }
+                        if !(height_mm.is_finite() && (0.0..=50.0).contains(height_mm)) {
+                            return bad(
+                                "target.height_mm",
+                                "must be in [0, 50] mm (the spacer's thickness under the board)",
+                            );
                         }
                     }
                     TargetDesc::ColourPattern { patch_mm } => {
@@ -783,6 +795,23 @@ mod tests {
         let e = SceneDesc::from_toml_str("[target]\nkind = \"checkerboard\"\nsquare_mm = -1.0\n")
             .unwrap_err();
         assert!(e.to_string().contains("target.square_mm"), "{e}");
+        for h in ["-1.0", "60.0", "nan"] {
+            let e = SceneDesc::from_toml_str(&format!(
+                "[target]\nkind = \"checkerboard\"\nsquare_mm = 5.0\nheight_mm = {h}\n"
+            ))
+            .unwrap_err();
+            assert!(e.to_string().contains("target.height_mm"), "{h}: {e}");
+        }
+        let raised = SceneDesc::from_toml_str(
+            "[target]\nkind = \"checkerboard\"\nsquare_mm = 5.0\nheight_mm = 20.0\n",
+        )
+        .unwrap();
+        assert!(matches!(
+            raised,
+            SceneDesc::Target {
+                target: TargetDesc::Checkerboard { height_mm, .. }
+            } if height_mm == 20.0
+        ));
         assert!(SceneDesc::from_toml_str("[target]\nkind = \"hologram\"\n").is_err());
         assert!(SceneDesc::from_toml_str("not toml [").is_err());
     }

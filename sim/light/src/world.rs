@@ -210,8 +210,13 @@ impl World {
                         let h = *size_mm as f32 / 2.0;
                         HeightField::two_steps([h, h], *low_mm as f32, *high_mm as f32)
                     }
-                    TargetDesc::Checkerboard { size_mm, .. }
-                    | TargetDesc::White { size_mm, .. } => {
+                    TargetDesc::Checkerboard {
+                        size_mm, height_mm, ..
+                    } => {
+                        let h = *size_mm as f32 / 2.0;
+                        HeightField::flat([h, h], *height_mm as f32)
+                    }
+                    TargetDesc::White { size_mm, .. } => {
                         let h = *size_mm as f32 / 2.0;
                         HeightField::flat([h, h], 0.0)
                     }
