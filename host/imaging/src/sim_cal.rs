@@ -6,18 +6,18 @@
 use std::f64::consts::PI;
 
 use glam::{DMat3, DQuat, DVec2, DVec3};
-use sim_light::sample::SceneDesc;
+use sim_light::sample::{SceneDesc, TargetDesc};
 use sim_light::{Illumination, LaserOn, RigTruth, SimQuality, World};
 
 use crate::calibration::{Calibration, LampCal, LaserCal, Turntable};
-use crate::camera::{rodrigues, rodrigues_inv, CameraModel, Intrinsics};
+use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
 use crate::corners::detect_board;
 use crate::hdr::{self, MergeOptions};
 use crate::image::{Image8, ImageF};
 use crate::photometric;
 use crate::rectify::{self, Grid};
 use crate::response::{self, Bracket, FitRange, MnOptions};
-use crate::zhang::{self, PlanarView, ZhangOptions};
+use crate::zhang::{self, PlanarView, Raised, ZhangOptions};
 use crate::{Error, Result};
 
 /// One line of the recovered-vs-true table.
@@ -70,6 +70,20 @@ fn mn_options() -> MnOptions {
 
 /// Lamp photons per channel of a checkerboard frame, at least.
 const GEOMETRY_PHOTONS: u64 = 400_000;
+
+/// Thickness of the spacer block the checkerboard is also imaged on, mm: the
+/// image scale's change with this known depth change separates focal length
+/// and distance, which the flat board alone cannot for the top camera.
+pub const SPACER_MM: f64 = 20.0;
+
+/// Cameras whose view is within this angle of straight down (radians) fit fy
+/// apart from fx. A flat board's foreshortening compresses the image along the
+/// camera's tilt as a pixel aspect would (to first order by sin(tilt)): the
+/// steep cameras (5, 6, 7: 26, 13, 0 deg) see the aspect free of it and fit it
+/// (top camera, seed 2: focal 0.47 -> 0.05 %, centre 15 -> 0.3 mm); for cameras
+/// 3 and 4 a free aspect traded against their poses (focal 0.1 -> 0.45 %, and
+/// camera 4's poses moved the laser-plane angle by up to 0.27 deg).
+const ASPECT_MAX_TILT: f64 = 30.0 * PI / 180.0;
 
 /// Light-arc (and turntable) angle of the laser-plane measurement, radians.
 const LASER_ARC: f64 = 30.0 * PI / 180.0;
@@ -260,6 +274,104 @@ impl SimCalibrator {
         q
     }
 
+    /// The checkerboard scene, the board on a spacer of `height_mm` (0: on the turntable).
+    fn checkerboard_world(&self, height_mm: f64) -> Result<World> {
+        let mut desc = SceneDesc::preset("checkerboard")
+            .map_err(|e| Error::Input(format!("sim scene checkerboard: {e}")))?;
+        if let SceneDesc::Target {
+            target: TargetDesc::Checkerboard { height_mm: h, .. },
+        } = &mut desc
+        {
+            *h = height_mm;
+        }
+        World::new(desc, self.rig.clone(), self.quality)
+            .map_err(|e| Error::Input(format!("sim world: {e}")))
+    }
+
+    /// The board's corners found in one frame of camera k, the board's top at
+    /// z = `height` turned by `theta`; None if too few are visible or found.
+    fn board_view(
+        &self,
+        img: &Image8,
+        k: usize,
+        theta: f64,
+        height: f64,
+        board: &[DVec2],
+    ) -> Option<PlanarView> {
+        let nominal = self.nominal_camera(k);
+        let rz = DMat3::from_rotation_z(theta);
+        let pred: Vec<Option<DVec2>> = board
+            .iter()
+            .map(|p| nominal.project(rz * DVec3::new(p.x, p.y, height)))
+            .collect();
+        let visible: Vec<usize> = (0..board.len())
+            .filter(|&i| {
+                pred[i].is_some_and(|q| {
+                    q.x > 8.0
+                        && q.y > 8.0
+                        && q.x < img.width as f64 - 9.0
+                        && q.y < img.height as f64 - 9.0
+                })
+            })
+            .collect();
+        if visible.len() < 12 {
+            return None;
+        }
+        let pts: Vec<DVec2> = visible
+            .iter()
+            .map(|&i| pred[i].unwrap_or_default())
+            .collect();
+        // Square size in pixels near the board centre, from the prediction.
+        let sq = nominal
+            .project(rz * DVec3::new(5.0, 0.0, height))
+            .zip(nominal.project(rz * DVec3::new(0.0, 0.0, height)));
+        let sq2 = nominal
+            .project(rz * DVec3::new(0.0, 5.0, height))
+            .zip(nominal.project(rz * DVec3::new(0.0, 0.0, height)));
+        let square_px = match (sq, sq2) {
+            (Some((a, o)), Some((c, _))) => (a - o).length().min((c - o).length()),
+            _ => return None,
+        };
+        // The 12 x 12 squares' centres and colours (bright where floor(x/5) + floor(y/5) is odd).
+        let squares: Vec<(DVec2, bool)> = (-6..6)
+            .flat_map(|j: i32| (-6..6).map(move |i: i32| (i, j)))
+            .filter_map(|(i, j)| {
+                let c = DVec3::new((i as f64 + 0.5) * 5.0, (j as f64 + 0.5) * 5.0, height);
+                nominal
+                    .project(rz * c)
+                    .map(|q| (q, (i + j).rem_euclid(2) == 1))
+            })
+            .collect();
+        // The board's axes at each corner, as image vectors to the next corners.
+        let axes: Vec<(DVec2, DVec2)> = visible
+            .iter()
+            .map(|&i| {
+                let p = DVec3::new(board[i].x, board[i].y, height);
+                let at = |d: DVec3| nominal.project(rz * (p + d)).unwrap_or_default();
+                let o = at(DVec3::ZERO);
+                (at(DVec3::X * 5.0) - o, at(DVec3::Y * 5.0) - o)
+            })
+            .collect();
+        let gray = img.gray_f32();
+        let Ok(found) = detect_board(
+            &gray, img.width, img.height, &pts, &axes, &squares, square_px,
+        ) else {
+            return None;
+        };
+        let mut v = PlanarView {
+            object: Vec::new(),
+            image: Vec::new(),
+            raised: None,
+        };
+        for (&i, f) in visible.iter().zip(found) {
+            if let Some(f) = f {
+                v.object.push(board[i]);
+                v.image.push(f);
+            }
+        }
+        (v.object.len() >= 12).then_some(v)
+    }
+
     /// Intrinsics, distortion and poses (Zhang), turntable axis, from the checkerboard.
     pub fn geometry(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
         let q = self.geometry_quality();
@@ -272,7 +384,6 @@ impl SimCalibrator {
             };
             return sim.geometry(cal, rows);
         }
-        let world = self.world("checkerboard")?;
         let thetas: Vec<f64> = (0..6).map(|i| i as f64 * PI / 3.0 + 0.2).collect();
         let b = self.binning() as f64;
         // Inner corners of the 60 mm board of 5 mm squares, sample frame.
@@ -281,82 +392,37 @@ impl SimCalibrator {
             .collect();
         let mut per_cam: Vec<Vec<PlanarView>> = vec![Vec::new(); self.cameras.len()];
         let mut per_cam_theta: Vec<Vec<f64>> = vec![Vec::new(); self.cameras.len()];
-        for (vi, &theta) in thetas.iter().enumerate() {
-            let frames =
-                self.capture(&world, &self.lamp_illum(theta, 7), &[0.03], 100 + vi as u64)?;
-            for (ci, (&k, f)) in self.cameras.iter().zip(frames).enumerate() {
-                let img = &f[0];
-                let nominal = self.nominal_camera(k);
-                let rz = DMat3::from_rotation_z(theta);
-                let pred: Vec<Option<DVec2>> = board
-                    .iter()
-                    .map(|p| nominal.project(rz * DVec3::new(p.x, p.y, 0.0)))
-                    .collect();
-                let visible: Vec<usize> = (0..board.len())
-                    .filter(|&i| {
-                        pred[i].is_some_and(|q| {
-                            q.x > 8.0
-                                && q.y > 8.0
-                                && q.x < img.width as f64 - 9.0
-                                && q.y < img.height as f64 - 9.0
-                        })
-                    })
-                    .collect();
-                if visible.len() < 12 {
+        // The board on the turntable at every angle, then on the spacer at every
+        // angle: a raised view is tied to the view of the same angle on the turntable.
+        let mut base_of: Vec<Vec<Option<usize>>> =
+            vec![vec![None; thetas.len()]; self.cameras.len()];
+        for height in [0.0, SPACER_MM] {
+            let world = self.checkerboard_world(height)?;
+            for (vi, &theta) in thetas.iter().enumerate() {
+                if height > 0.0 && base_of.iter().all(|c| c[vi].is_none()) {
                     continue;
                 }
-                let pts: Vec<DVec2> = visible
-                    .iter()
-                    .map(|&i| pred[i].unwrap_or_default())
-                    .collect();
-                // Square size in pixels near the board centre, from the prediction.
-                let sq = nominal
-                    .project(rz * DVec3::new(5.0, 0.0, 0.0))
-                    .zip(nominal.project(rz * DVec3::ZERO));
-                let sq2 = nominal
-                    .project(rz * DVec3::new(0.0, 5.0, 0.0))
-                    .zip(nominal.project(rz * DVec3::ZERO));
-                let square_px = match (sq, sq2) {
-                    (Some((a, o)), Some((c, _))) => (a - o).length().min((c - o).length()),
-                    _ => continue,
-                };
-                // The 12 x 12 squares' centres and colours (bright where floor(x/5) + floor(y/5) is odd).
-                let squares: Vec<(DVec2, bool)> = (-6..6)
-                    .flat_map(|j: i32| (-6..6).map(move |i: i32| (i, j)))
-                    .filter_map(|(i, j)| {
-                        let c = DVec3::new((i as f64 + 0.5) * 5.0, (j as f64 + 0.5) * 5.0, 0.0);
-                        nominal
-                            .project(rz * c)
-                            .map(|q| (q, (i + j).rem_euclid(2) == 1))
-                    })
-                    .collect();
-                // The board's axes at each corner, as image vectors to the next corners.
-                let axes: Vec<(DVec2, DVec2)> = visible
-                    .iter()
-                    .map(|&i| {
-                        let p = DVec3::new(board[i].x, board[i].y, 0.0);
-                        let at = |d: DVec3| nominal.project(rz * (p + d)).unwrap_or_default();
-                        let o = at(DVec3::ZERO);
-                        (at(DVec3::X * 5.0) - o, at(DVec3::Y * 5.0) - o)
-                    })
-                    .collect();
-                let gray = img.gray_f32();
-                let Ok(found) = detect_board(
-                    &gray, img.width, img.height, &pts, &axes, &squares, square_px,
-                ) else {
-                    continue;
-                };
-                let mut v = PlanarView {
-                    object: Vec::new(),
-                    image: Vec::new(),
-                };
-                for (&i, f) in visible.iter().zip(found) {
-                    if let Some(f) = f {
-                        v.object.push(board[i]);
-                        v.image.push(f);
+                let tag = 100 + vi as u64 + if height > 0.0 { 50 } else { 0 };
+                let frames = self.capture(&world, &self.lamp_illum(theta, 7), &[0.03], tag)?;
+                for (ci, (&k, f)) in self.cameras.iter().zip(frames).enumerate() {
+                    let raised = if height > 0.0 {
+                        match base_of[ci][vi] {
+                            Some(base) => Some(Raised {
+                                base,
+                                height_mm: height,
+                            }),
+                            None => continue,
+                        }
+                    } else {
+                        None
+                    };
+                    let Some(mut v) = self.board_view(&f[0], k, theta, height, &board) else {
+                        continue;
+                    };
+                    v.raised = raised;
+                    if height == 0.0 {
+                        base_of[ci][vi] = Some(per_cam[ci].len());
                     }
-                }
-                if v.object.len() >= 12 {
                     per_cam[ci].push(v);
                     per_cam_theta[ci].push(theta);
                 }
@@ -365,7 +431,8 @@ impl SimCalibrator {
         let mut axis_samples = Vec::new();
         for (ci, &k) in self.cameras.iter().enumerate() {
             let views = &per_cam[ci];
-            if views.len() < 2 {
+            let n_raised = views.iter().filter(|v| v.raised.is_some()).count();
+            if views.len() - n_raised < 2 {
                 rows.push(Row {
                     quantity: format!("camera {k} checkerboard views"),
                     recovered: views.len() as f64,
@@ -386,10 +453,13 @@ impl SimCalibrator {
                 image_height: h,
                 distortion: true,
                 fix_principal_point: true,
-                centre_distance: Some((g.cameras[k].distance, 1.0)),
+                // The mechanical distance only when no raised view gives it.
+                centre_distance: (n_raised == 0).then_some((g.cameras[k].distance, 1.0)),
                 initial_focal: Some(g.sensor.focal_px / b),
                 // The lens's centring tolerance, ~4 px at full resolution.
                 principal_sd: Some(4.0 / b),
+                // fy apart from fx where the board's tilt does not mimic it.
+                fit_aspect: PI / 2.0 - g.cameras[k].elevation <= ASPECT_MAX_TILT,
             };
             let res = match zhang::calibrate(views, opts) {
                 Ok(r) => r,
@@ -410,7 +480,12 @@ impl SimCalibrator {
             let mut q_sum = glam::DVec4::ZERO;
             let mut t_sum = DVec3::ZERO;
             let mut q0: Option<DQuat> = None;
-            for (i, (r, t)) in res.poses.iter().enumerate() {
+            // The views on the turntable (board origin = world origin).
+            let on_table: Vec<usize> = (0..views.len())
+                .filter(|&i| views[i].raised.is_none())
+                .collect();
+            for &i in &on_table {
+                let (r, t) = &res.poses[i];
                 let rcw = rodrigues(*r) * DMat3::from_rotation_z(view_thetas[i]).transpose();
                 let mut q = DQuat::from_mat3(&rcw);
                 if let Some(q0) = q0 {
@@ -424,16 +499,16 @@ impl SimCalibrator {
                 t_sum += *t;
             }
             let q = DQuat::from_vec4(q_sum).normalize();
-            let n = res.poses.len() as f64;
+            let n = on_table.len() as f64;
             let model = CameraModel {
                 intrinsics: res.intrinsics,
                 rotation: rodrigues_inv(DMat3::from_quat(q)).to_array(),
                 translation: (t_sum / n).to_array(),
             };
             // Turntable axis from the relative rotation of the first and last views (sample frame).
-            if res.poses.len() >= 2 {
-                let r0 = rodrigues(res.poses[0].0);
-                let r1 = rodrigues(res.poses[res.poses.len() - 1].0);
+            if on_table.len() >= 2 {
+                let r0 = rodrigues(res.poses[on_table[0]].0);
+                let r1 = rodrigues(res.poses[on_table[on_table.len() - 1]].0);
                 let rel = r0.transpose() * r1;
                 let (ax, ang) = DQuat::from_mat3(&rel).to_axis_angle();
                 if ang.abs() > 0.3 {
@@ -693,8 +768,8 @@ impl SimCalibrator {
             cameras: vec![k],
         };
         let g = hardware::NOMINAL_GEOMETRY;
-        // The plane angle is measured with a mid-elevation camera: the top one is the
-        // least well placed by a flat checkerboard (docs/imaging.md).
+        // The plane angle is measured with a mid-elevation camera (chosen when the top
+        // one's focal rested on a distance prior; kept, docs/imaging.md).
         let k_geo = if self.cameras.contains(&4) { 4 } else { k };
         let cam_geo = self.cam_at_binning(cal, k_geo)?;
         let one_geo = SimCalibrator {

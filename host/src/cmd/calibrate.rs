@@ -16,7 +16,8 @@ pub enum Step {
     Response,
     /// Relative colour of the cameras from the colour pattern.
     Colour,
-    /// Intrinsics, distortion, poses (Zhang) and the turntable axis from the checkerboard.
+    /// Intrinsics, distortion, poses (Zhang) and the turntable axis from the checkerboard
+    /// (on the turntable and on a spacer of known thickness, `sim_cal::SPACER_MM`).
     Geometry,
     /// Lamp irradiance from the reference white.
     Lamps,
