@@ -3,25 +3,13 @@
 //! Whole milk, green laser stripe, 7 cameras at 1024 x 768, the default
 //! photon budget (`SimQuality::default_scale`); prints wall and CPU seconds
 //! of each render (the world is built before the clock starts).
-use sim_light::bench::process_cpu_seconds;
-use sim_light::{Illumination, LaserOn, RigTruth, SceneDesc, SimQuality, World};
+use sim_light::bench::{full_pose_scene, process_cpu_seconds};
 
 fn main() -> Result<(), sim_light::Error> {
     let args: Vec<String> = std::env::args().collect();
     let repeats: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(3);
     let threads: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(2);
-    let world = World::new(
-        SceneDesc::preset("whole-milk")?,
-        RigTruth::nominal(),
-        SimQuality::default_scale(),
-    )?;
-    let illum = Illumination {
-        laser: Some(LaserOn {
-            channel: 1,
-            power: 1.0,
-        }),
-        ..Illumination::default()
-    };
+    let (world, illum) = full_pose_scene()?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

@@ -63,6 +63,24 @@ fn pool(threads: usize) -> rayon::ThreadPool {
         .expect("thread pool")
 }
 
+/// The benchmark's full-size pose: whole milk under the green laser stripe,
+/// seen by 7 cameras at 1024 x 768 with the default photon budget.
+pub fn full_pose_scene() -> Result<(World, Illumination), Error> {
+    let world = World::new(
+        SceneDesc::preset("whole-milk")?,
+        RigTruth::nominal(),
+        SimQuality::default_scale(),
+    )?;
+    let illum = Illumination {
+        laser: Some(LaserOn {
+            channel: 1,
+            power: 1.0,
+        }),
+        ..Illumination::default()
+    };
+    Ok((world, illum))
+}
+
 /// CPU seconds this process has used (user + system), from /proc; the
 /// machine is shared, so per-core rates divide by CPU time, not wall time.
 pub fn process_cpu_seconds() -> Option<f64> {
@@ -121,18 +139,7 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
         .collect();
     let (mut full_pose_seconds, mut full_pose_cpu_seconds, mut splat_share) = (None, None, None);
     if full_pose {
-        let world = World::new(
-            SceneDesc::preset("whole-milk")?,
-            RigTruth::nominal(),
-            SimQuality::default_scale(),
-        )?;
-        let illum = Illumination {
-            laser: Some(LaserOn {
-                channel: 1,
-                power: 1.0,
-            }),
-            ..Illumination::default()
-        };
+        let (world, illum) = full_pose_scene()?;
         let p2 = pool(2);
         let c0 = process_cpu_seconds();
         let t0 = Instant::now();
