@@ -224,7 +224,11 @@ pub fn fit_capture(
                 let img = data.read_image(&s.file)?;
                 let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average)
                     / s.flux_per_mm;
-                let skip = if sees_specular(s) { core_mm(&grid) } else { 0.0 };
+                let skip = if sees_specular(s) {
+                    core_mm(&grid)
+                } else {
+                    0.0
+                };
                 let mut sum = vec![0.0; n_bins];
                 let mut dsum = vec![0.0; n_bins];
                 let mut count = vec![0u64; n_bins];

@@ -510,7 +510,9 @@ mod tests {
             })
             .collect();
         let c = log_quadratic(&pts);
-        assert!((c[0] - 1.0).abs() < 1e-9 && (c[1] + 0.5).abs() < 1e-9 && (c[2] - 0.01).abs() < 1e-9);
+        assert!(
+            (c[0] - 1.0).abs() < 1e-9 && (c[1] + 0.5).abs() < 1e-9 && (c[2] - 0.01).abs() < 1e-9
+        );
         let mut p = Profile::new(pts.iter().copied(), 0.0);
         p.intensity[10] *= 0.1;
         let idx: Vec<usize> = (0..20).collect();

@@ -70,8 +70,14 @@ fn parse_range(s: &str) -> Result<(f64, f64), String> {
 
 pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
     let profile = Profile::read_csv(&args.profile)?;
-    let fit = fit_profile(&profile, args.reflectance, args.eta, args.range, args.norm.into())
-        .with_context(|| format!("fitting {}", args.profile.display()))?;
+    let fit = fit_profile(
+        &profile,
+        args.reflectance,
+        args.eta,
+        args.range,
+        args.norm.into(),
+    )
+    .with_context(|| format!("fitting {}", args.profile.display()))?;
     if args.json {
         let v = serde_json::json!({
             "alpha_prime": fit.alpha_prime,
