@@ -292,17 +292,9 @@ pub fn render_scene_stats<M: Material>(
     material: &M,
     settings: &RenderSettings,
 ) -> Result<(Image, RenderStats), RenderError> {
-    let t0 = Instant::now();
-    let mut stats = RenderStats::default();
-    let prep = prepare(scene, material, settings, &mut stats)?;
-    let t = Instant::now();
-    let camera = |x: f32, y: f32| Some(scene.camera.ray(x, y, settings.width, settings.height));
-    let (img, queries, terms) = render_pixels(scene, material, settings, &prep, &camera);
-    stats.secs_pixels = t.elapsed().as_secs_f64();
-    stats.queries = queries;
-    stats.terms = terms;
-    stats.secs_total = t0.elapsed().as_secs_f64();
-    Ok((img, stats))
+    render_scene_camera(scene, material, settings, |x, y| {
+        Some(scene.camera.ray(x, y, settings.width, settings.height))
+    })
 }
 
 /// [`render_scene_stats`] through the caller's camera model instead of

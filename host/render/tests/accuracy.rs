@@ -98,18 +98,22 @@ fn wide_slab_reflects_total_diffuse_reflectance() {
 }
 
 /// A test material with a constant, view-independent LRF (light from above
-/// only), to compare full rendering with the LRF alone.
-struct WithLrf(Homogeneous);
+/// only), to compare full rendering with the LRF alone; the LRF holds the
+/// scattering within a disc of radius `disc_mm` (eq. 4's A_o), 0 for none.
+struct WithLrf {
+    base: Homogeneous,
+    disc_mm: f32,
+}
 
 impl Material for WithLrf {
     fn dipole(&self) -> DipoleParams {
-        self.0.dipole()
+        self.base.dipole()
     }
     fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
-        self.0.entrance(wi)
+        self.base.entrance(wi)
     }
     fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
-        self.0.exiting(uv, wo)
+        self.base.exiting(uv, wo)
     }
     fn lrf(&self, _uv: [f32; 2], wi: [f32; 3], _wo: [f32; 3]) -> [f32; 3] {
         [0.05 * wi[2]; 3]
@@ -119,6 +123,9 @@ impl Material for WithLrf {
     }
     fn texel_mm(&self) -> f32 {
         1.0
+    }
+    fn local_disc_mm(&self) -> f32 {
+        self.disc_mm
     }
 }
 
@@ -132,9 +139,12 @@ fn back_light_shows_through_in_full_but_not_in_lrf_only() {
         to_light: -Vec3::Z,
         irradiance: Vec3::splat(3.0),
     }];
-    let material = WithLrf(Homogeneous {
-        dipole: synthetic(),
-    });
+    let material = WithLrf {
+        base: Homogeneous {
+            dipole: synthetic(),
+        },
+        disc_mm: 0.0,
+    };
     let mut settings = RenderSettings {
         width: 16,
         height: 16,
@@ -162,34 +172,6 @@ fn back_light_shows_through_in_full_but_not_in_lrf_only() {
     }];
     let front = mean(Mode::LrfOnly, &scene);
     assert!((front.x - 0.15).abs() < 0.01, "{front}");
-}
-
-/// [`WithLrf`] whose LRF holds the scattering within a disc of radius
-/// `disc` mm, as a fitted model's LRF holds its texel's (eq. 4's A_o).
-struct WithLocalDisc(WithLrf, f32);
-
-impl Material for WithLocalDisc {
-    fn dipole(&self) -> DipoleParams {
-        self.0.dipole()
-    }
-    fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
-        self.0.entrance(wi)
-    }
-    fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
-        self.0.exiting(uv, wo)
-    }
-    fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
-        self.0.lrf(uv, wi, wo)
-    }
-    fn texture_size(&self) -> (u32, u32) {
-        (1, 1)
-    }
-    fn texel_mm(&self) -> f32 {
-        1.0
-    }
-    fn local_disc_mm(&self) -> f32 {
-        self.1
-    }
 }
 
 /// Mean radiance of the centre of a wide slab lit and seen from above.
@@ -221,12 +203,12 @@ fn lrf_local_disc_is_left_out_of_the_dipole_sum() {
     // Eq. 4: L = R E + f_v / pi Σ_{B_o} R_d f E A. The LRF already holds
     // the disc A_o, so the dipole sum must skip it, not count it again.
     let disc = 0.6f32;
-    let m = WithLocalDisc(
-        WithLrf(Homogeneous {
+    let m = WithLrf {
+        base: Homogeneous {
             dipole: synthetic(),
-        }),
-        disc,
-    );
+        },
+        disc_mm: disc,
+    };
     let e = 2.0f32;
     let got = wide_slab_mean(&m, Mode::Full, e).x;
     let d = synthetic().channel(0);
