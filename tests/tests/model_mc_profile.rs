@@ -3,24 +3,33 @@
 //! dipole profile fit, and compare a' and s'_t with the slab's truth.
 //!
 //! I(d) is the exit-position histogram of a vertical stripe across a central
-//! band, per entering photon per mm of stripe and per mm² of surface; R is the
-//! fraction of entering photons that leave through the top (the dipole models
-//! light that has entered; the specular part belongs to the LRF).
+//! band, per incident photon per mm of stripe and per mm² of surface; R is the
+//! fraction of incident photons that leave through the top below it (the
+//! specular reflection is not counted: it belongs to the LRF). The fit
+//! divides both by T(0), the share that enters.
 
 use glam::Vec3;
 use qhm_model::profile::{Norm, Profile, fit_profile};
 use sim_light::*;
 
-/// (I(d) profile, R, photons) of a smooth homogeneous slab with reduced
-/// coefficients s'_s, s_a (isotropic scattering, eta 1.3).
-fn mc_profile(sigma_s: f64, sigma_a: f64, photons: u64, seed: u64) -> (Profile, f64) {
+/// (I(d) profile, R) of a large homogeneous slab (300 x 300 x 150 mm,
+/// isotropic scattering) with reduced coefficients s'_s, s_a, index `eta`
+/// and GGX `roughness` on top, lit by a vertical stripe of colour `channel`.
+fn mc_profile(
+    sigma_s: f64,
+    sigma_a: f64,
+    eta: f64,
+    roughness: f64,
+    photons: u64,
+    seed: u64,
+) -> (Profile, f64) {
     let desc = SceneDesc::Sample(SampleDesc {
         name: "homogeneous".into(),
         size_mm: [300.0, 300.0, 150.0],
         seed: 0,
         surface: SurfaceDesc {
-            eta: 1.3,
-            roughness: 0.0,
+            eta,
+            roughness,
             ..SurfaceDesc::default()
         },
         volume: VolumeDesc {
@@ -43,47 +52,53 @@ fn mc_profile(sigma_s: f64, sigma_a: f64, photons: u64, seed: u64) -> (Profile, 
     let grid = ExitGrid::new(n, cell);
     let t = world.trace(&stripe, 0, photons, seed, Some(&grid));
     assert!(t.balanced(), "{t:?}");
-    let entered = (t.launched - t.missed - t.reflected) as f64;
+    // Per incident flux, as a capture measures it (the specular reflection
+    // off the smooth top is part of the incident flux, not of I(d)).
+    let incident = (t.launched - t.missed) as f64;
     let counts = grid.values();
     // Central band along the stripe, far from its ends (|y| < 10 mm).
     let (j0, j1) = (n / 2 - 40, n / 2 + 40);
-    let per_mm = entered / length as f64;
+    let per_mm = incident / length as f64;
     let area = (cell * cell) as f64 * (j1 - j0) as f64;
     let points = (0..n).map(|i| {
         let x = (i as f64 + 0.5) * cell as f64 - n as f64 * cell as f64 / 2.0;
         let c: u64 = (j0..j1).map(|j| counts[j * n + i] as u64).sum();
         (x, c as f64 / area / per_mm)
     });
-    (Profile::new(points, cell as f64), t.exited as f64 / entered)
+    (
+        Profile::new(points, cell as f64),
+        t.exited as f64 / incident,
+    )
+}
+
+/// The fit's a' and s'_t errors (absolute, relative) on a Monte Carlo profile.
+fn errors(
+    sigma_s: f64,
+    sigma_a: f64,
+    eta: f64,
+    roughness: f64,
+    photons: u64,
+) -> Result<(f64, f64), qhm_model::ModelError> {
+    let st = sigma_s + sigma_a;
+    let a = sigma_s / st;
+    let (profile, r) = mc_profile(sigma_s, sigma_a, eta, roughness, photons, 7);
+    let fit = fit_profile(&profile, r, eta, None, Norm::Poisson)?;
+    eprintln!(
+        "s'_s {sigma_s} s_a {sigma_a} eta {eta}: R {r:.4}; a' {:.5} (true {a:.5}), s'_t {:.4} (true {st:.4}), range {:?}, residual {:.3e}",
+        fit.alpha_prime, fit.sigma_t_prime, fit.range_mm, fit.residual
+    );
+    Ok((fit.alpha_prime - a, fit.sigma_t_prime / st - 1.0))
 }
 
 fn check(sigma_s: f64, sigma_a: f64, photons: u64) {
-    let st = sigma_s + sigma_a;
-    let a = sigma_s / st;
-    let (profile, r) = mc_profile(sigma_s, sigma_a, photons, 7);
-    let fit = fit_profile(&profile, r, 1.3, None, Norm::Poisson).unwrap();
-    eprintln!(
-        "s'_s {sigma_s} s_a {sigma_a}: R {r:.4}; a' {:.5} (true {a:.5}), s'_t {:.4} (true {st:.4}), range {:?}, residual {:.3e}",
-        fit.alpha_prime, fit.sigma_t_prime, fit.range_mm, fit.residual
-    );
-    assert!(
-        (fit.alpha_prime - a).abs() < 0.002,
-        "a' {} vs {a}",
-        fit.alpha_prime
-    );
-    let rel = (fit.sigma_t_prime - st).abs() / st;
-    assert!(
-        rel < 0.05,
-        "s'_t {} vs {st} ({:.1} %)",
-        fit.sigma_t_prime,
-        rel * 100.0
-    );
+    let (da, ds) = errors(sigma_s, sigma_a, 1.3, 0.0, photons).unwrap();
+    assert!(da.abs() < 0.002, "a' off by {da}");
+    assert!(ds.abs() < 0.05, "s'_t off by {:.1} %", ds * 100.0);
 }
 
 #[test]
 fn mc_stripe_profile_of_a_homogeneous_slab_fits_the_truth() {
-    // Skim-milk-like red channel (Jensen et al. 2001): s'_s 0.70, s_a 0.0014 would
-    // need a huge slab; a white, translucent slab of s'_t ~ 1.5 keeps CI fast.
+    // A white, translucent slab of s'_t ~ 1.5.
     check(1.5, 0.006, 400_000);
 }
 
@@ -91,4 +106,52 @@ fn mc_stripe_profile_of_a_homogeneous_slab_fits_the_truth() {
 fn mc_stripe_profile_of_a_more_absorbing_slab_fits_the_truth() {
     // a' = 0.952, s'_t = 2.1: a shorter diffusion length, where the dipole is poorer.
     check(2.0, 0.1, 400_000);
+}
+
+/// Every channel of the homogeneous presets, each with its own eta and
+/// polished (GGX 0.02) top, the stripe's light per incident flux as a
+/// capture measures it. In the dipole's regime (a' >= 0.95) a' is within
+/// issue 5's 0.002 (measured: <= 0.0009). s'_t is within 5 % for marble
+/// (+1.8, +1.8, -0.5 %), skim milk and skin2, but the classical dipole's
+/// profile is steeper than transport's at eta 1.3 and s'_t comes out
+/// +5..+7 % for whole milk, cream and potato (red) on any distance range
+/// (docs/model-format.md), so the bound here is 8 %. Lower albedos (skin1
+/// green and blue, potato blue, ketchup) are outside diffusion: printed only.
+#[test]
+fn mc_stripe_profiles_of_the_homogeneous_presets_fit_the_truth() {
+    let mut failures = Vec::new();
+    for name in [
+        "marble",
+        "whole-milk",
+        "skim-milk",
+        "cream",
+        "apple",
+        "potato",
+        "skin1",
+        "skin2",
+        "ketchup",
+    ] {
+        let (k, eta) = material_preset(name).unwrap();
+        for c in 0..3 {
+            let (ss, sa) = (k.sigma_s[c], k.sigma_a[c]);
+            let a = ss / (ss + sa);
+            match errors(ss, sa, eta, POLISHED_ROUGHNESS, 200_000) {
+                Ok((da, ds)) => {
+                    eprintln!(
+                        "{name} channel {c}: a' {a:.4} off by {da:+.4}, s'_t off by {:+.1} %",
+                        ds * 100.0
+                    );
+                    if a >= 0.95 && (da.abs() >= 0.002 || ds.abs() >= 0.08) {
+                        failures.push(format!(
+                            "{name} channel {c}: a' {da:+.4}, s'_t {:+.1} %",
+                            ds * 100.0
+                        ));
+                    }
+                }
+                Err(e) if a < 0.95 => eprintln!("{name} channel {c}: a' {a:.4}: {e}"),
+                Err(e) => failures.push(format!("{name} channel {c}: {e}")),
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
 }

@@ -195,6 +195,9 @@ impl PlanConfig {
                 cameras: vec![3, 5, 7],
                 lamps: vec![2, 5],
                 scan_positions: 3,
+                // Three stripes 6 mm apart keep 10 mm of window on both
+                // sides of each: f(w_i) compares whole bands.
+                scan_half_width_mm: 6.0,
                 laser_exposures: vec![0.0000625, 0.0005, 0.004, 0.032],
                 lamp_exposures: vec![0.008, 0.064],
                 binning: 4,

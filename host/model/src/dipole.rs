@@ -67,6 +67,14 @@ pub fn exitance_per_radiance(cos_view: f64, eta: f64, fresnel_average: f64) -> f
     std::f64::consts::PI * (1.0 - fresnel_average) / (1.0 - fresnel_dielectric(cos_view, eta))
 }
 
+/// T(0) = 1 - F(0): the share of a normal beam that enters a smooth surface.
+/// R_total(a') and the dipole are per entered flux; the model's f(w_i) is
+/// relative to normal incidence, so light entering per incident flux is
+/// T(0) f(w_i).
+pub fn normal_transmittance(eta: f64) -> f64 {
+    1.0 - fresnel_dielectric(1.0, eta)
+}
+
 /// Fresnel transmittance ratio T(θ)/T(0): the entrance function of a flat,
 /// smooth surface (1 at normal incidence).
 pub fn fresnel_transmittance_ratio(cos_theta_i: f64, eta: f64) -> f64 {

@@ -9,11 +9,13 @@
 //! 2. R = 2 ∫ I(d) dd: near-field bins the capture lacks (masked as NaN) are
 //!    filled from the dipole by iterating R -> a' -> s'_t; beyond the data the
 //!    measured tail is continued at its own exponential decay.
-//! 3. a' by inverting R_total, s'_t by the profile fit ([`crate::profile`]).
+//! 3. a' by inverting R = T(0) R_total (T(0) = 1 - F(0): the share of the
+//!    stripe that enters), s'_t by the profile fit ([`crate::profile`]).
 //! 4. f(w_i) from pass-1 band fluxes over views, relative to the vertical.
-//! 5. f_v(p, v) = Σ_l L(p, v, l) / Σ_l I_D(d(p, l)) flux_l / π (the formula
-//!    after eq. 6 with I(p, l) from the dipole of eq. 5).
-//! 6. LRF = (L - f_v f(w_i) E cos θ_i (R_total - R_texel) / π) / E, negatives kept.
+//! 5. f_v(p, v) = Σ_l L(p, v, l) / Σ_l T(0) I_D(d(p, l)) flux_l / π (the
+//!    formula after eq. 6 with I(p, l) from the dipole of eq. 5).
+//! 6. LRF = (L - f_v T(0) f(w_i) E cos θ_i (R_total - R_texel) / π) / E,
+//!    negatives kept.
 
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
@@ -132,6 +134,28 @@ impl StripeTable {
     }
 }
 
+/// The dipole as the capture sees it: per incident flux of a normal stripe,
+/// T(0) times Jensen's per-entered R_d (see [`crate::profile`]).
+struct EnteringDipole {
+    dipole: Dipole,
+    t_in: f64,
+}
+
+impl EnteringDipole {
+    fn new(alpha_prime: f64, sigma_t_prime: f64, eta: f64) -> Self {
+        EnteringDipole {
+            dipole: Dipole::new(alpha_prime, sigma_t_prime, eta),
+            t_in: dipole::normal_transmittance(eta),
+        }
+    }
+    fn stripe(&self, d: f64) -> f64 {
+        self.t_in * self.dipole.stripe(d)
+    }
+    fn total(&self) -> f64 {
+        self.t_in * self.dipole.total()
+    }
+}
+
 /// R = 2 ∫ I(d) dd from I(d) binned at `bin` mm (None: no valid texel).
 /// Measured bins count as they are; unmeasured bins below the last measured
 /// one (the stripe's near field, masked) come from the dipole `dp` when
@@ -140,7 +164,7 @@ impl StripeTable {
 /// The sample's edges and depth shape that far tail, and the dipole's
 /// semi-infinite tail would overstate it (and feed back through a' into a
 /// still longer tail).
-fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&Dipole>) -> f64 {
+fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&EnteringDipole>) -> f64 {
     let centre = |k: usize| (k as f64 + 0.5) * bin;
     let measured: Vec<usize> = (0..means.len()).filter(|&k| means[k].is_some()).collect();
     let (Some(&first), Some(&last)) = (measured.first(), measured.last()) else {
@@ -300,7 +324,7 @@ pub fn fit_capture(
                 auto_range: auto,
                 ..f
             };
-            let dp = Dipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
+            let dp = EnteringDipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
             fit = Some((r_used, f));
             let next = reflectance_from_profile(&means, bin, Some(&dp));
             if (next - r).abs() < 1e-9 * r {
@@ -326,6 +350,8 @@ pub fn fit_capture(
         sigma_t_prime: std::array::from_fn(|c| channels[c].fit.sigma_t_prime),
         eta: opts.eta,
     };
+    // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
+    let t_in = dipole::normal_transmittance(opts.eta);
     let tables: Vec<StripeTable> = (0..3)
         .map(|c| StripeTable::new(&dipole.channel(c), diag_max))
         .collect();
@@ -365,7 +391,7 @@ pub fn fit_capture(
                         // Only where the dipole was fitted: the near field is not diffusion.
                         if l.is_finite() && d >= lo && d <= hi {
                             num[j * w + i][c] += l;
-                            den[j * w + i][c] += tables[c].eval(d) * s.flux_per_mm / PI;
+                            den[j * w + i][c] += tables[c].eval(d) * t_in * s.flux_per_mm / PI;
                         }
                     }
                 }
@@ -413,7 +439,7 @@ pub fn fit_capture(
     let r0 = grid.texel_mm / PI.sqrt();
     let global: [f64; 3] = std::array::from_fn(|c| {
         let dp = dipole.channel(c);
-        dp.total() - dp.disc_integral(r0)
+        t_in * (dp.total() - dp.disc_integral(r0))
     });
     let lrf: Vec<(LrfSample, Texture, usize)> = data
         .index
@@ -497,10 +523,9 @@ fn fit_entrance(
     notes: &mut Vec<String>,
 ) -> Result<(EntranceFunction, Vec<([f32; 3], [f32; 3])>), ModelError> {
     let is_vertical = |d: [f64; 3]| d[2] > (2f64).to_radians().cos();
-    // Mean per-stripe sum Σ_p L / flux, keyed by (light, view, channel).
+    // Mean per-stripe exitance flux / incident flux, keyed by (light, view, channel).
     let mut groups: BTreeMap<([i64; 3], [i64; 3], u8), (f64, usize, [f64; 3])> = BTreeMap::new();
-    let pass1: Vec<&StripeEntry> = data.index.stripe.iter().filter(|s| s.pass == 1).collect();
-    if pass1.is_empty() {
+    if !data.index.stripe.iter().any(|s| s.pass == 1) {
         notes.push(
             "no pass-1 images: entrance function set to the smooth-surface Fresnel ratio".into(),
         );
@@ -509,13 +534,25 @@ fn fit_entrance(
             Vec::new(),
         ));
     }
-    let has_vertical_pass1 = pass1.iter().any(|s| is_vertical(s.light_dir));
+    // Pass 1 and, as more vertical references, pass 2. The whole stripe
+    // counts, its core included (the near field's share of the light changes
+    // with the angle of incidence), so views that see the laser's specular
+    // reflection on the core are left out; views are made comparable through
+    // the exitance per radiance, so a light whose vertical reference lacks
+    // its view (the top camera sees the vertical laser's mirror reflection)
+    // is still compared.
     let used: Vec<&StripeEntry> = data
         .index
         .stripe
         .iter()
-        .filter(|s| s.pass == 1 || (!has_vertical_pass1 && s.pass == 2))
+        .filter(|s| (s.pass == 1 || is_vertical(s.light_dir)) && !sees_specular(s))
         .collect();
+    if used.is_empty() {
+        return Err(ModelError::Fit(
+            "entrance function: every stripe image sees the laser's specular reflection".into(),
+        ));
+    }
+    let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
     // The three lasers' planes differ by fractions of a degree: light
     // directions within ~1 degree of a cluster's first member are one
     // direction, so each direction has all channels (clusters, not a grid:
@@ -565,7 +602,8 @@ fn fit_entrance(
                 return Ok(None);
             }
             let img = data.read_image(&s.file)?;
-            Ok(Some(band_flux(&img, s, grid, reach) / s.flux_per_mm))
+            let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average);
+            Ok(Some(k * band_flux(&img, s, grid, reach) / s.flux_per_mm))
         })
         .collect::<Result<_, _>>()?;
     let short = fluxes.iter().filter(|f| f.is_none()).count();
@@ -598,32 +636,23 @@ fn fit_entrance(
         }
         let mut value = [f32::NAN; 3];
         for c in 0..3u8 {
-            let (mut num, mut den, mut common) = (0.0, 0.0, 0);
+            // Σ over the light's views of its flux and of the vertical's in
+            // the same view, or the vertical's mean over views where that
+            // view has no reference.
+            let reference: Vec<f64> = groups
+                .iter()
+                .filter(|((l, _, ch), _)| *l == vertical && *ch == c)
+                .map(|(_, g)| g.0 / g.1 as f64)
+                .collect();
+            let mean_reference = reference.iter().sum::<f64>() / reference.len() as f64;
+            let (mut num, mut den) = (0.0, 0.0);
             for ((l, v, ch), g) in &groups {
                 if l == lk && *ch == c {
-                    if let Some(r) = groups.get(&(vertical, *v, c)) {
-                        num += g.0 / g.1 as f64;
-                        den += r.0 / r.1 as f64;
-                        common += 1;
-                    }
+                    num += g.0 / g.1 as f64;
+                    den += groups
+                        .get(&(vertical, *v, c))
+                        .map_or(mean_reference, |r| r.0 / r.1 as f64);
                 }
-            }
-            if common == 0 {
-                // No shared views: compare the view-averaged sums.
-                let mean = |key: [i64; 3]| {
-                    let v: Vec<f64> = groups
-                        .iter()
-                        .filter(|((l, _, ch), _)| *l == key && *ch == c)
-                        .map(|(_, g)| g.0 / g.1 as f64)
-                        .collect();
-                    if v.is_empty() {
-                        f64::NAN
-                    } else {
-                        v.iter().sum::<f64>() / v.len() as f64
-                    }
-                };
-                num = mean(*lk);
-                den = mean(vertical);
             }
             value[c as usize] = (num / den) as f32;
         }
@@ -688,21 +717,18 @@ fn band_extent(s: &StripeEntry, grid: &crate::rectified::Grid) -> f64 {
     hi.min(-lo)
 }
 
-/// Outgoing radiance integrated across the stripe over core <= |d| <= reach,
-/// per mm of line: Σ over texel-wide signed-distance bins of the bin's mean
-/// radiance (over its finite texels) times the bin width. The core is left
-/// out of every image alike: the vertical references include views that see
-/// the laser's specular reflection there.
+/// Outgoing radiance integrated across the stripe over |d| <= reach, per mm
+/// of line: Σ over texel-wide signed-distance bins of the bin's mean
+/// radiance (over its finite texels) times the bin width.
 fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reach: f64) -> f64 {
     let c = s.channel as usize;
     let bin = grid.texel_mm;
-    let core = core_mm(grid);
     let n = (2.0 * reach / bin).ceil() as usize;
     let (mut sum, mut count) = (vec![0.0; n], vec![0u32; n]);
     for j in 0..grid.height as usize {
         for i in 0..grid.width as usize {
             let d = s.signed_distance(grid.centre(i, j));
-            if d.abs() > reach || d.abs() < core {
+            if d.abs() > reach {
                 continue;
             }
             let b = (((d + reach) / bin) as usize).min(n - 1);
@@ -737,7 +763,7 @@ mod tests {
     #[test]
     fn reflectance_fills_the_near_field_from_the_dipole() {
         // The dipole's own profile, the first 0.5 mm masked and measured to 40 mm.
-        let dp = Dipole::new(0.99, 2.0, 1.3);
+        let dp = EnteringDipole::new(0.99, 2.0, 1.3);
         let bin = 0.02;
         let means: Vec<Option<f64>> = (0..2000)
             .map(|k| {

@@ -26,8 +26,10 @@ use crate::model::{
 
 /// The `format` string of a manifest.
 pub const FORMAT: &str = "qhm-material";
-/// The manifest version this code writes and reads.
-pub const VERSION: u32 = 1;
+/// The manifest version this code writes and reads. Version 2: a' and s'_t
+/// are per entered flux (fitted from R / T(0)); version 1 fitted them per
+/// incident flux, which reads 4 % too little light at eta 1.5.
+pub const VERSION: u32 = 2;
 
 #[derive(Serialize, Deserialize)]
 struct Manifest {
@@ -236,6 +238,13 @@ impl MaterialModel {
                 "format is `{}`, expected `{FORMAT}`",
                 m.format
             )));
+        }
+        if m.version == 1 {
+            return Err(bad(
+                "version 1 (a' and s'_t per incident flux) is no longer read; \
+                 refit the capture with `qhm fit` to write version 2"
+                    .into(),
+            ));
         }
         if m.version != VERSION {
             return Err(bad(format!(
@@ -520,8 +529,11 @@ mod tests {
             d
         };
         let d = fresh();
-        edit(d.path(), "version = 1", "version = 7");
+        edit(d.path(), "version = 2", "version = 7");
         assert!(load_err(d.path()).contains("unsupported version 7"));
+        let d = fresh();
+        edit(d.path(), "version = 2", "version = 1");
+        assert!(load_err(d.path()).contains("refit the capture"));
         let d = fresh();
         edit(d.path(), "format = \"qhm-material\"", "format = \"other\"");
         assert!(load_err(d.path()).contains("format is `other`"));

@@ -11,7 +11,9 @@
 //!
 //! A profile I(d) is the outgoing exitance along lines at distance d from a
 //! straight stripe, per unit incident flux per mm of stripe (mm^-1), on a flat
-//! semi-infinite sample: the quantity the dipole's I_D(d) predicts directly.
+//! semi-infinite sample. The dipole's I_D(d) and R_total(a') count the light
+//! that entered: T(0) = 1 - F(0) of a normal stripe (4 % is reflected at eta
+//! 1.5), so the measurement is T(0) I_D(d) and R = T(0) R_total(a').
 
 use std::path::Path;
 
@@ -191,7 +193,8 @@ pub struct ChannelFit {
     pub fit: ProfileFit,
 }
 
-/// Fits a profile: a' by inverting R, then s'_t over `range` (or an automatic range).
+/// Fits a profile (per incident flux, like R): a' by inverting R / T(0),
+/// then s'_t over `range` (or an automatic range) against T(0) I_D(d).
 pub fn fit_profile(
     profile: &Profile,
     reflectance: f64,
@@ -199,7 +202,15 @@ pub fn fit_profile(
     range: Option<(f64, f64)>,
     norm: Norm,
 ) -> Result<ProfileFit, ModelError> {
-    let alpha_prime = dipole::alpha_prime_from_reflectance(reflectance, eta)?;
+    // The measurement is per incident flux; the dipole is per entered flux,
+    // and a normal stripe enters through T(0) (Jensen et al. 2001's F_t(w_i)).
+    let t_in = dipole::normal_transmittance(eta);
+    let entered = Profile {
+        intensity: profile.intensity.iter().map(|i| i / t_in).collect(),
+        ..profile.clone()
+    };
+    let profile = &entered;
+    let alpha_prime = dipole::alpha_prime_from_reflectance(reflectance / t_in, eta)?;
     let (range, auto) = match range {
         Some(r) => {
             if !(r.0.is_finite() && r.1.is_finite() && r.0 >= 0.0 && r.1 > r.0) {
@@ -434,8 +445,10 @@ mod tests {
     /// noise from a fixed-seed LCG (no rand dependency needed here).
     use crate::dipole::Dipole;
 
+    /// Per incident flux, as measured: T(0) I_D(d).
     fn synthetic(a: f64, st: f64, noise: f64, seed: u64) -> Profile {
         let dp = Dipole::new(a, st, 1.3);
+        let t_in = dipole::normal_transmittance(1.3);
         let mut state = seed;
         let mut uniform = move || {
             state = state
@@ -449,7 +462,7 @@ mod tests {
                 let n = (uniform() - 0.5) * 2.0 * noise;
                 (
                     d,
-                    dp.stripe(d) * (1.0 + n) + noise * 1e-4 * (uniform() - 0.5),
+                    t_in * dp.stripe(d) * (1.0 + n) + noise * 1e-4 * (uniform() - 0.5),
                 )
             }),
             0.0,
@@ -459,7 +472,7 @@ mod tests {
     #[test]
     fn recovers_sigma_t_prime_from_exact_dipole_data() {
         for &(a, st) in &[(0.99, 1.0), (0.95, 2.5), (0.999, 0.7), (0.9, 6.0)] {
-            let r = dipole::total_reflectance(a, 1.3);
+            let r = dipole::normal_transmittance(1.3) * dipole::total_reflectance(a, 1.3);
             let p = synthetic(a, st, 0.0, 1);
             let fit = fit_profile(&p, r, 1.3, None, Norm::Poisson).unwrap();
             assert!((fit.alpha_prime - a).abs() < 1e-10);
@@ -474,7 +487,7 @@ mod tests {
     #[test]
     fn fit_is_stable_under_small_range_changes() {
         let (a, st) = (0.98, 1.5);
-        let r = dipole::total_reflectance(a, 1.3);
+        let r = dipole::normal_transmittance(1.3) * dipole::total_reflectance(a, 1.3);
         let p = synthetic(a, st, 0.03, 7);
         let base = fit_profile(&p, r, 1.3, None, Norm::Poisson).unwrap();
         assert!(base.auto_range);

@@ -169,10 +169,12 @@ pub fn profile_svg(model: &MaterialModel) -> Option<String> {
             }
         }
         let dp = Dipole::new(ch.fit.alpha_prime, ch.fit.sigma_t_prime, model.dipole.eta);
+        // Measured points are per incident flux: T(0) I_D(d) (qhm_model::profile).
+        let t_in = crate::dipole::normal_transmittance(model.dipole.eta);
         let pts: Vec<String> = (0..=300)
             .map(|k| {
                 let d = x1 * k as f64 / 300.0;
-                format!("{:.1},{:.1}", f.px(d), f.py(dp.stripe(d)))
+                format!("{:.1},{:.1}", f.px(d), f.py(t_in * dp.stripe(d)))
             })
             .collect();
         let _ = writeln!(

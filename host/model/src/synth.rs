@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use crate::ModelError;
 use crate::dipole::{
     DipoleParams, ScaledStripe, exitance_per_radiance, fresnel_hemispherical_average,
-    fresnel_transmittance_ratio,
+    fresnel_transmittance_ratio, normal_transmittance,
 };
 use crate::exrio::write_rgb;
 use crate::model::Texture;
@@ -100,6 +100,11 @@ impl SynthSpec {
         fresnel_transmittance_ratio(light[2], self.dipole.eta)
     }
 
+    /// The share of incident light that enters from `light`: T(0) f(w_i).
+    fn entering(&self, light: [f64; 3]) -> f64 {
+        normal_transmittance(self.dipole.eta) * self.entrance(light)
+    }
+
     /// The true LRF at texel (i, j), channel c.
     pub fn lrf(&self, i: usize, j: usize, c: usize, light: [f64; 3], view: [f64; 3]) -> f64 {
         let a = ((i * 7 + j * 3 + c) % 5) as f64 / 4.0 - 0.3;
@@ -151,7 +156,7 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
     stripes.par_iter().try_for_each(|s| {
         let c = s.channel as usize;
         let st = spec.dipole.sigma_t_prime[c];
-        let f = spec.entrance(s.light_dir);
+        let f = spec.entering(s.light_dir);
         let mut img = Texture::filled(w, h, [0.0; 3]);
         for j in 0..h {
             for i in 0..w {
@@ -186,7 +191,7 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
         }
     }
     lamps.par_iter().try_for_each(|l| {
-        let f = spec.entrance(l.light_dir);
+        let f = spec.entering(l.light_dir);
         let mut img = Texture::filled(w, h, [0.0; 3]);
         for j in 0..h {
             for i in 0..w {

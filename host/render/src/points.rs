@@ -3,11 +3,13 @@
 //! of the area), and the irradiance at each from every light, with shadow
 //! rays, attenuated by the mesostructure entrance function f(w_i):
 //!
-//!   E_i = sum over delta lights of f(w_l) cos(theta_l) V E_l
-//!       + (1/N) sum_k L_env(w_k) f(w_k) cos(theta_k) V / pdf(w_k).
+//!   E_i = T(0) [sum over delta lights of f(w_l) cos(theta_l) V E_l
+//!       + (1/N) sum_k L_env(w_k) f(w_k) cos(theta_k) V / pdf(w_k)].
 //!
 //! The cosine is the dx_i = (n . w_i) dA of paper eq. 1; f carries the
-//! remaining angular attenuation (Fresnel and mesostructure). Surfaces are
+//! angular attenuation (Fresnel and mesostructure) relative to normal
+//! incidence and T(0) = 1 - F_r(eta, 0) the share of a normal beam that
+//! enters (R_d counts entered light). Surfaces are
 //! treated as two-sided: light counts on whichever side it arrives, so
 //! meshes with inconsistent winding still work.
 
@@ -39,24 +41,26 @@ pub struct SurfaceSamples {
 /// How incoming light is attenuated on entering the material.
 #[derive(Clone, Copy, Debug)]
 pub enum Entrance<'a, M: Material> {
-    /// The model's mesostructure entrance function f(w_i).
+    /// The model's mesostructure entrance function f(w_i), relative to
+    /// normal incidence, times the share T(0) = 1 - F_r(eta, 0) of a normal
+    /// beam that enters: R_d counts entered light (Jensen et al. 2001's
+    /// F_t(w_i) R_d; qhm-model fits a' from R / T(0)).
     Model(&'a M),
-    /// Plain dipole: the smooth-surface Fresnel transmittance relative to
-    /// normal incidence, (1 - F_r(eta, w_i)) / (1 - F_r(eta, 0)). R_d's
-    /// total (a') is outgoing per incident flux at normal incidence, the
-    /// entry already inside (qhm-model fits it so; sim-light's Monte Carlo
-    /// matches R_total(a') that way), so only the angular change is applied.
+    /// Plain dipole: the smooth-surface Fresnel transmittance 1 - F_r(eta, w_i).
     Fresnel(f64),
 }
 
 impl<M: Material> Entrance<'_, M> {
     fn eval(&self, wi_local: Vec3) -> Vec3 {
+        use qhm_model::dipole::{fresnel_dielectric, normal_transmittance};
         match self {
-            Entrance::Model(m) => Vec3::from(m.entrance(wi_local.to_array())),
-            Entrance::Fresnel(eta) => Vec3::splat(qhm_model::dipole::fresnel_transmittance_ratio(
-                wi_local.z as f64,
-                *eta,
-            ) as f32),
+            Entrance::Model(m) => {
+                Vec3::from(m.entrance(wi_local.to_array()))
+                    * normal_transmittance(m.dipole().eta) as f32
+            }
+            Entrance::Fresnel(eta) => {
+                Vec3::splat((1.0 - fresnel_dielectric(wi_local.z as f64, *eta)) as f32)
+            }
         }
     }
 }

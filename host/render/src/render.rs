@@ -6,22 +6,22 @@
 //!            = Σ_lights R(x_o, w_l, w_o) V E_l + (1/N) Σ_k R L_env(w_k) V / pdf(w_k)
 //!   L_global = f_v(x_o, w_o) / pi · Σ_i R_d(|x_o - x_i|) E_i A_i     (mode full)
 //!
-//! with E_i the f-attenuated irradiance of the surface samples (see
-//! [`crate::points`]) and the sum evaluated by the octree
+//! with E_i the irradiance of the surface samples that enters, T(0) f(w_i)
+//! E (see [`crate::points`]), and the sum evaluated by the octree
 //! ([`crate::octree`]). Normalisation, as qhm-model defines its fit
-//! (docs/model-format.md): Σ R_d E A is a diffuse exitance, 1/pi turns it
-//! into radiance, and f_v (1 for a homogeneous material) carries the view
-//! dependence. The plain-dipole modes use the smooth-surface Fresnel shapes
-//! of Jensen et al. 2001 instead of f and f_v, normalised the way R_d is:
-//! L_global = (1 - F_r(eta, w_o)) / ((1 - F̄) pi) · Σ R_d E_i A_i with E_i
-//! attenuated by (1 - F_r(eta, w_i)) / (1 - F_r(eta, 0)). R_d integrates to
-//! R_total(a'), the outgoing per incident flux of a normal beam: both
-//! boundary crossings are already inside it (qhm-model fits a' from exactly
-//! that ratio; sim-light's Monte Carlo slab agrees with R_total(a') with no
-//! further factor). Jensen's unnormalised 1 - F_r at both ends would apply
-//! them a second time (x0.92 at eta 1.3, x0.87 at eta 1.5), as would any
-//! Fresnel factor on top of f and f_v in eq. 4, which already contain the
-//! incoming and outgoing Fresnel terms (paper section 3).
+//! (docs/model-format.md): R_d integrates to R_total(a'), the outgoing per
+//! entered flux (Jensen et al. 2001; sim-light's Monte Carlo slab agrees
+//! with it per entered photon), so Σ R_d E A is a diffuse exitance, 1/pi
+//! turns it into radiance, and f_v (1 for a homogeneous material) carries
+//! the view dependence. f is 1 at normal incidence; T(0) = 1 - F_r(eta, 0)
+//! is the normal beam's entry (qhm-model fits a' from R / T(0)). The
+//! plain-dipole modes use the smooth-surface Fresnel shapes of Jensen et
+//! al. 2001 instead of f and f_v: E_i attenuated by 1 - F_r(eta, w_i), and
+//! L_global = (1 - F_r(eta, w_o)) / ((1 - F̄) pi) · Σ R_d E_i A_i, the exit
+//! normalised because R_total(a') already counts only light that left
+//! (Jensen's unnormalised 1 - F_r on exit would apply it a second time, as
+//! would any Fresnel factor on top of f_v in eq. 4, which already contains
+//! the outgoing Fresnel term; paper section 3).
 //!
 //! When the material has an LRF, the dipole sum leaves out the disc A_o of
 //! radius `Material::local_disc_mm` around x_o: eq. 4 sums over B_o = A - A_o,

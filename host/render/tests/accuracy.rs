@@ -67,6 +67,11 @@ fn synthetic() -> DipoleParams {
     }
 }
 
+/// T(0): the share of normal light that enters (R_d counts entered light).
+fn t_in(p: &DipoleParams) -> f32 {
+    qhm_model::dipole::normal_transmittance(p.eta) as f32
+}
+
 #[test]
 fn wide_slab_reflects_total_diffuse_reflectance() {
     let mut scene = Scene::new(slab(40.0, 10.0).unwrap());
@@ -91,8 +96,9 @@ fn wide_slab_reflects_total_diffuse_reflectance() {
     };
     let img = render_scene(&scene, &material, &settings).unwrap();
     let got = img.mean(0, 0, 8, 8);
-    // Eq. 4 with f(normal) = 1 and f_v = 1: L = E / pi * ∫ R_d dA = E R_total / pi.
-    let exact = e * synthetic().channel(0).total() as f32 / std::f32::consts::PI;
+    // Eq. 4 with f(normal) = 1 and f_v = 1: L = T(0) E / pi * ∫ R_d dA = T(0) E R_total / pi.
+    let exact =
+        t_in(&synthetic()) * e * synthetic().channel(0).total() as f32 / std::f32::consts::PI;
     let rel = (got.x - exact).abs() / exact;
     assert!(rel < 0.05, "got {got}, expected {exact}");
 }
@@ -214,8 +220,9 @@ fn lrf_local_disc_is_left_out_of_the_dipole_sum() {
     let d = synthetic().channel(0);
     let lrf = 0.05 * e;
     let outside = (d.total() - d.disc_integral(disc as f64)) as f32;
-    let exact = lrf + e * outside / std::f32::consts::PI;
-    let doubled = lrf + e * d.total() as f32 / std::f32::consts::PI;
+    let t0 = t_in(&synthetic());
+    let exact = lrf + t0 * e * outside / std::f32::consts::PI;
+    let doubled = lrf + t0 * e * d.total() as f32 / std::f32::consts::PI;
     assert!(
         (doubled - exact) / exact > 0.06,
         "the disc must matter: {doubled} vs {exact}"
@@ -229,9 +236,9 @@ fn lrf_local_disc_is_left_out_of_the_dipole_sum() {
 
 #[test]
 fn plain_dipole_keeps_the_total_reflectance() {
-    // R_total(a') is outgoing per incident flux: dipole-only applies only
-    // the angular Fresnel shapes, normalised (entry 1 at normal incidence,
-    // exit (1 - F(w_o)) / (1 - F̄)), not Jensen's 1 - F at both ends again.
+    // R_total(a') is outgoing per entered flux: dipole-only enters through
+    // 1 - F(w_i) (T(0) at normal incidence) and leaves with the normalised
+    // shape (1 - F(w_o)) / ((1 - F̄) π), not Jensen's unnormalised 1 - F again.
     let p = DipoleParams {
         eta: 1.5,
         ..synthetic()
@@ -241,7 +248,7 @@ fn plain_dipole_keeps_the_total_reflectance() {
     let got = wide_slab_mean(&m, Mode::DipoleOnly, e).x;
     let f0 = qhm_model::dipole::fresnel_dielectric(1.0, 1.5);
     let fbar = qhm_model::dipole::fresnel_hemispherical_average(1.5);
-    let exact = (e as f64 * p.channel(0).total() * (1.0 - f0)
+    let exact = (e as f64 * (1.0 - f0) * p.channel(0).total() * (1.0 - f0)
         / ((1.0 - fbar) * std::f64::consts::PI)) as f32;
     let doubled = exact * ((1.0 - f0) * (1.0 - fbar)) as f32;
     assert!((exact - doubled) / exact > 0.1, "{exact} vs {doubled}");
@@ -252,7 +259,7 @@ fn plain_dipole_keeps_the_total_reflectance() {
     );
     // And full mode (f_v = 1: Lambertian exit) has the same exitance.
     let full = wide_slab_mean(&m, Mode::Full, e).x;
-    let lambert = (e as f64 * p.channel(0).total() / std::f64::consts::PI) as f32;
+    let lambert = (e as f64 * (1.0 - f0) * p.channel(0).total() / std::f64::consts::PI) as f32;
     assert!(
         (full - lambert).abs() / lambert < 0.04,
         "{full} vs {lambert}"

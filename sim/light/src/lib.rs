@@ -38,8 +38,9 @@ mod world;
 
 pub use rig::{CameraTruth, LampTruth, LaserGeometry, LaserTruth, RigTruth};
 pub use sample::{
-    COLOUR_PATTERN, Coefficients, InclusionDesc, MaterialDesc, Relief, SCENE_PRESETS, SampleDesc,
-    SceneDesc, SurfaceDesc, TargetDesc, VolumeDesc, colour_patch_at, material_preset,
+    COLOUR_PATTERN, Coefficients, InclusionDesc, MaterialDesc, POLISHED_ROUGHNESS, Relief,
+    SCENE_PRESETS, SampleDesc, SceneDesc, SurfaceDesc, TargetDesc, VolumeDesc, colour_patch_at,
+    material_preset,
 };
 pub use sensor::{Frame, FrameMeta, Response, Sensor};
 pub use transport::{ExitGrid, Source, Tally};
