@@ -47,7 +47,8 @@ pub struct BenchReport {
     pub splat_share: Option<f64>,
 }
 
-fn medium_world(name: &str) -> Result<World, Error> {
+/// A homogeneous or heterogeneous preset as a 200 x 200 x 100 mm slab.
+pub fn medium_world(name: &str) -> Result<World, Error> {
     let mut desc = SceneDesc::preset(name)?;
     if let SceneDesc::Sample(s) = &mut desc {
         // big enough that the walls do not matter
@@ -56,7 +57,15 @@ fn medium_world(name: &str) -> Result<World, Error> {
     World::new(desc, RigTruth::nominal(), SimQuality::ci())
 }
 
-fn pool(threads: usize) -> rayon::ThreadPool {
+/// A normal pencil beam onto the slab's centre.
+pub fn pencil() -> Source {
+    Source::Pencil {
+        origin: Vec3::new(0.0, 0.0, 10.0),
+        dir: -Vec3::Z,
+    }
+}
+
+pub fn pool(threads: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -93,13 +102,19 @@ pub fn process_cpu_seconds() -> Option<f64> {
     Some((ut + st) / 100.0)
 }
 
+/// Runs `f`: its result, wall seconds and CPU seconds (None without /proc).
+pub fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, Option<f64>) {
+    let c0 = process_cpu_seconds();
+    let t0 = Instant::now();
+    let r = f();
+    let wall = t0.elapsed().as_secs_f64();
+    (r, wall, c0.zip(process_cpu_seconds()).map(|(a, b)| b - a))
+}
+
 /// Run the benchmark; `photons` per measurement (e.g. 200_000).
 pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
     let mut rows = Vec::new();
-    let pencil = Source::Pencil {
-        origin: Vec3::new(0.0, 0.0, 10.0),
-        dir: -Vec3::Z,
-    };
+    let pencil = pencil();
     // red: the channel where the sponge's foam and voids differ most
     for (label, preset, ch) in [
         ("homogeneous whole-milk", "whole-milk", 1),
@@ -110,14 +125,8 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
             let p = pool(threads);
             // warm up caches and the pool
             p.install(|| world.trace(&pencil, ch, photons / 10, 99, None));
-            let c0 = process_cpu_seconds();
-            let t0 = Instant::now();
-            let t = p.install(|| world.trace(&pencil, ch, photons, 1, None));
-            let s = t0.elapsed().as_secs_f64();
-            let cpu = c0
-                .zip(process_cpu_seconds())
-                .map(|(a, b)| b - a)
-                .filter(|c| *c > 0.0);
+            let (t, s, cpu) = timed(|| p.install(|| world.trace(&pencil, ch, photons, 1, None)));
+            let cpu = cpu.filter(|c| *c > 0.0);
             rows.push(BenchRow {
                 medium: label.to_string(),
                 threads,
@@ -141,11 +150,10 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
     if full_pose {
         let (world, illum) = full_pose_scene()?;
         let p2 = pool(2);
-        let c0 = process_cpu_seconds();
-        let t0 = Instant::now();
-        p2.install(|| world.render_pose(&illum, 0xFE, 1))?;
-        full_pose_seconds = Some(t0.elapsed().as_secs_f64());
-        full_pose_cpu_seconds = c0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
+        let (r, wall, cpu) = timed(|| p2.install(|| world.render_pose(&illum, 0xFE, 1)));
+        r?;
+        full_pose_seconds = Some(wall);
+        full_pose_cpu_seconds = cpu;
         // splat share: a small pose with and without cameras on one thread
         let small = World::new(
             SceneDesc::preset("whole-milk")?,

@@ -46,7 +46,7 @@ impl Rng {
     /// Uniform in [0, 1), 24 bits.
     #[inline(always)]
     pub fn uniform(&mut self) -> f32 {
-        (self.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
+        unit_f32(self.next_u32())
     }
 
     /// Uniform in [0, 1), 53 bits.

@@ -378,7 +378,7 @@ const fn circle_table() -> [(f32, f32); 256] {
 /// libm call). Same pdf as `sample_uniform_sphere`.
 #[inline(always)]
 pub fn sample_uniform_sphere_bits(bits: u64) -> Vec3 {
-    let z = 1.0 - 2.0 * ((bits >> 40) as f32 * (1.0 / 16_777_216.0));
+    let z = 1.0 - 2.0 * unit_f32((bits >> 32) as u32);
     let r = (1.0 - z * z).max(0.0).sqrt();
     let (c, s) = unit_circle_from_bits(bits as u32);
     Vec3::new(r * c, r * s, z)
@@ -472,7 +472,6 @@ impl Pass<'_> {
         bsdf: &Dielectric,
         splat: bool,
         rng: &mut WalkRng,
-        t: &mut Tally,
     ) -> Option<BsdfSample> {
         if splat {
             self.splat(x, local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
@@ -485,10 +484,7 @@ impl Pass<'_> {
         );
         match s {
             Some(s) if s.weight >= 1.0 || rng.uniform() < s.weight => Some(s),
-            _ => {
-                t.surface_loss += 1;
-                None
-            }
+            _ => None,
         }
     }
 
@@ -511,7 +507,7 @@ impl Pass<'_> {
         // Exactly one draw from the walk's stream, whatever the cameras: the
         // walk (and so every image) is the same for any set of cameras.
         let key = rng.next_u64();
-        let u = (key >> 40) as f32 / (1u64 << 24) as f32;
+        let u = unit_f32((key >> 32) as u32);
         // q <= NEE_RATE < 1, so most vertices are turned away here, before
         // the height lookup and the exponential (same decisions as testing
         // u >= q alone)
@@ -676,7 +672,8 @@ impl Pass<'_> {
             SurfaceKind::Dielectric(b) => *b,
         };
         // entry: surface reflection towards the cameras, then reflect or refract
-        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, true, rng, t) else {
+        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, true, rng) else {
+            t.surface_loss += 1;
             return;
         };
         if s.wi.z > 0.0 {
@@ -750,7 +747,7 @@ impl Pass<'_> {
         };
         let limit = absorb_at.min(MAX_EVENTS as u64);
         let mut events = 0u64;
-        let (mut real, mut null) = (0u64, 0u64);
+        let mut null = 0u64;
         let mut from_vertex = false;
         let end = loop {
             // free flight against the majorant (= s_t when homogeneous); the
@@ -760,7 +757,7 @@ impl Pass<'_> {
             if let Some((_, x)) = hf.crossing_from_below(p, d, dist) {
                 // A segment from a scattering vertex was already splatted by
                 // that vertex's next-event estimate.
-                let splat = !(self.vertex_nee && from_vertex);
+                let splat = !(NEE && from_vertex);
                 match self.cross_boundary(x, d, bsdf, splat, rng) {
                     Crossing::Inside(d2) => {
                         d = d2;
@@ -775,7 +772,9 @@ impl Pass<'_> {
             if p.x.abs() > hx || p.y.abs() > hy || p.z < -depth {
                 break End::Escaped;
             }
+            // Every real collision is an event, an absorbed one included.
             let st = if HOMOGENEOUS {
+                events += 1;
                 st0
             } else {
                 let (st, alb) = table[vol.material_at([p.x, p.y, p.z])];
@@ -783,13 +782,12 @@ impl Pass<'_> {
                     null += 1;
                     continue;
                 }
-                real += 1;
+                events += 1;
                 if rng.uniform() >= alb {
                     break End::Absorbed;
                 }
                 st
             };
-            events += 1;
             if events >= limit {
                 break if HOMOGENEOUS && events == absorb_at {
                     End::Absorbed
@@ -803,7 +801,7 @@ impl Pass<'_> {
             from_vertex = true;
             d = sample_uniform_sphere_bits(rng.next_u64());
         };
-        t.events += if HOMOGENEOUS { events } else { real };
+        t.events += events;
         t.null_events += null;
         match end {
             End::Absorbed => t.absorbed += 1,
@@ -832,8 +830,7 @@ impl Pass<'_> {
         }
         let local = Local::new(hf.normal(x.x, x.y));
         let wo = local.to_local(-d);
-        let mut loss = Tally::default();
-        let Some(s) = self.boundary_event(x, &local, wo, bsdf, splat, rng, &mut loss) else {
+        let Some(s) = self.boundary_event(x, &local, wo, bsdf, splat, rng) else {
             return Crossing::Ended(End::SurfaceLoss);
         };
         if s.wi.z > 0.0 {
