@@ -79,6 +79,9 @@ const SAME_LIGHT_DIR: f64 = 0.02;
 /// Directions are grouped when closer than this (radians).
 const SAME_DIR: f64 = 1e-3;
 
+/// The group key of every near-vertical light (`dir_key` of the normal).
+const VERTICAL_KEY: [i64; 3] = [0, 0, (1.0 / SAME_DIR) as i64];
+
 /// Views within 10 degrees of the laser's mirror direction see its
 /// specular reflection on the stripe's core, which is surface, not
 /// subsurface, light.
@@ -562,7 +565,7 @@ fn fit_entrance(
         .iter()
         .map(|s| {
             if is_vertical(s.light_dir) {
-                return [0, 0, (1.0 / SAME_DIR) as i64];
+                return VERTICAL_KEY;
             }
             let d = s.light_dir;
             let close = |c: &[f64; 3]| {
@@ -621,7 +624,16 @@ fn fit_entrance(
         e.0 += flux;
         e.1 += 1;
     }
-    let vertical = [0, 0, (1.0 / SAME_DIR) as i64];
+    let mean = |g: &(f64, usize, [f64; 3])| g.0 / g.1 as f64;
+    // The vertical's flux per channel, averaged over its views.
+    let mean_reference: [f64; 3] = std::array::from_fn(|c| {
+        let per_view: Vec<f64> = groups
+            .iter()
+            .filter(|((l, _, ch), _)| *l == VERTICAL_KEY && *ch as usize == c)
+            .map(|(_, g)| mean(g))
+            .collect();
+        per_view.iter().sum::<f64>() / per_view.len() as f64
+    });
     let mut lights: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
     for (k, v) in &groups {
         lights.entry(k.0).or_insert(v.2);
@@ -631,7 +643,7 @@ fn fit_entrance(
         // Near-vertical directions (the vertical stripe from another arc or
         // turntable angle, tilted by the rig's small errors) are the
         // reference itself, f = 1, not oblique samples.
-        if *lk == vertical || ld[2] > NEAR_VERTICAL_COS {
+        if *lk == VERTICAL_KEY || ld[2] > NEAR_VERTICAL_COS {
             continue;
         }
         let mut value = [f32::NAN; 3];
@@ -639,19 +651,13 @@ fn fit_entrance(
             // Σ over the light's views of its flux and of the vertical's in
             // the same view, or the vertical's mean over views where that
             // view has no reference.
-            let reference: Vec<f64> = groups
-                .iter()
-                .filter(|((l, _, ch), _)| *l == vertical && *ch == c)
-                .map(|(_, g)| g.0 / g.1 as f64)
-                .collect();
-            let mean_reference = reference.iter().sum::<f64>() / reference.len() as f64;
             let (mut num, mut den) = (0.0, 0.0);
             for ((l, v, ch), g) in &groups {
                 if l == lk && *ch == c {
-                    num += g.0 / g.1 as f64;
+                    num += mean(g);
                     den += groups
-                        .get(&(vertical, *v, c))
-                        .map_or(mean_reference, |r| r.0 / r.1 as f64);
+                        .get(&(VERTICAL_KEY, *v, c))
+                        .map_or(mean_reference[c as usize], mean);
                 }
             }
             value[c as usize] = (num / den) as f32;

@@ -17,6 +17,7 @@
 
 use std::path::Path;
 
+use glam::{DMat2, DMat3, DVec2, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -341,49 +342,37 @@ fn misfit_weights(profile: &Profile, idx: &[usize], norm: Norm) -> Vec<f64> {
 }
 
 /// Least-squares ln I = c0 + c1 d + c2 d² over the points with I > 0 (a
-/// straight line with fewer than 4 such points).
+/// straight line with fewer than 4 such points), by the normal equations.
 fn log_quadratic(pts: &[(f64, f64)]) -> [f64; 3] {
     let pos: Vec<(f64, f64)> = pts
         .iter()
         .filter(|p| p.1 > 0.0)
         .map(|&(d, i)| (d, i.ln()))
         .collect();
-    let terms = if pos.len() >= 4 { 3 } else { 2 };
-    let mut a = [[0.0f64; 3]; 3];
-    let mut b = [0.0f64; 3];
-    for &(d, y) in &pos {
-        let x = [1.0, d, d * d];
-        for r in 0..terms {
-            b[r] += x[r] * y;
-            for c in 0..terms {
-                a[r][c] += x[r] * x[c];
-            }
+    let flat = [pos.first().map_or(0.0, |p| p.1), 0.0, 0.0];
+    if pos.len() >= 4 {
+        let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
+        for &(d, y) in &pos {
+            let x = DVec3::new(1.0, d, d * d);
+            a += DMat3::from_cols(x * x.x, x * x.y, x * x.z);
+            b += x * y;
+        }
+        if a.determinant().abs() > 1e-300 {
+            return (a.inverse() * b).to_array();
+        }
+    } else {
+        let (mut a, mut b) = (DMat2::ZERO, DVec2::ZERO);
+        for &(d, y) in &pos {
+            let x = DVec2::new(1.0, d);
+            a += DMat2::from_cols(x * x.x, x * x.y);
+            b += x * y;
+        }
+        if a.determinant().abs() > 1e-300 {
+            let c = a.inverse() * b;
+            return [c.x, c.y, 0.0];
         }
     }
-    // Gaussian elimination with partial pivoting on the terms x terms system.
-    let mut sol = [0.0f64; 3];
-    for col in 0..terms {
-        let piv = (col..terms)
-            .max_by(|&p, &q| a[p][col].abs().total_cmp(&a[q][col].abs()))
-            .unwrap_or(col);
-        a.swap(col, piv);
-        b.swap(col, piv);
-        if a[col][col].abs() < 1e-300 {
-            return [pos.first().map_or(0.0, |p| p.1), 0.0, 0.0];
-        }
-        for r in col + 1..terms {
-            let f = a[r][col] / a[col][col];
-            for c in col..terms {
-                a[r][c] -= f * a[col][c];
-            }
-            b[r] -= f * b[col];
-        }
-    }
-    for r in (0..terms).rev() {
-        let s: f64 = (r + 1..terms).map(|c| a[r][c] * sol[c]).sum();
-        sol[r] = (b[r] - s) / a[r][r];
-    }
-    sol
+    flat
 }
 
 /// Coarse-to-fine search of s'_t over [SIGMA_T_PRIME_MIN, 10]: a 0.05 mm^-1

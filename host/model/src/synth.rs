@@ -89,10 +89,19 @@ impl SynthSpec {
     /// smooth surface's Fresnel exit shape π L / M (so the exitance, averaged
     /// over ±x views, is the dipole's).
     pub fn fv(&self, i: usize, j: usize, view: [f64; 3]) -> f64 {
+        self.fv_pattern(i, j, view) * self.exit_shape(view)
+    }
+
+    /// The texture part of f_v: 1 + A a(i, j) v_x.
+    fn fv_pattern(&self, i: usize, j: usize, view: [f64; 3]) -> f64 {
         let a = (2.0 * PI * i as f64 / 8.0).sin() * (2.0 * PI * j as f64 / 6.0).cos();
+        1.0 + self.fv_amplitude * a * view[0]
+    }
+
+    /// A smooth surface's Fresnel exit shape π L / M for `view`.
+    fn exit_shape(&self, view: [f64; 3]) -> f64 {
         let eta = self.dipole.eta;
-        let shape = PI / exitance_per_radiance(view[2], eta, fresnel_hemispherical_average(eta));
-        (1.0 + self.fv_amplitude * a * view[0]) * shape
+        PI / exitance_per_radiance(view[2], eta, fresnel_hemispherical_average(eta))
     }
 
     /// The true f(w_i): the smooth-surface Fresnel ratio.
@@ -157,6 +166,7 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
         let c = s.channel as usize;
         let st = spec.dipole.sigma_t_prime[c];
         let f = spec.entering(s.light_dir);
+        let shape = spec.exit_shape(s.view_dir);
         let mut img = Texture::filled(w, h, [0.0; 3]);
         for j in 0..h {
             for i in 0..w {
@@ -165,8 +175,12 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
                 v[c] = if d < spec.near_field_mm {
                     f32::NAN
                 } else {
-                    (spec.fv(i, j, s.view_dir) * f * s.flux_per_mm * tables[c].eval(d, st) / PI)
-                        as f32
+                    (spec.fv_pattern(i, j, s.view_dir)
+                        * shape
+                        * f
+                        * s.flux_per_mm
+                        * tables[c].eval(d, st)
+                        / PI) as f32
                 };
                 img.data[j * w + i] = v;
             }
@@ -192,12 +206,14 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
     }
     lamps.par_iter().try_for_each(|l| {
         let f = spec.entering(l.light_dir);
+        let shape = spec.exit_shape(l.view_dir);
         let mut img = Texture::filled(w, h, [0.0; 3]);
         for j in 0..h {
             for i in 0..w {
                 img.data[j * w + i] = std::array::from_fn(|c| {
                     let e = l.irradiance[c];
-                    let g = spec.fv(i, j, l.view_dir) * f * e * l.light_dir[2] * global[c] / PI;
+                    let fv = spec.fv_pattern(i, j, l.view_dir) * shape;
+                    let g = fv * f * e * l.light_dir[2] * global[c] / PI;
                     (g + spec.lrf(i, j, c, l.light_dir, l.view_dir) * e) as f32
                 });
             }
