@@ -205,21 +205,29 @@ pub fn fit_saddle(
         0.0,
         0.0f64,
     ];
-    let model = |q: &[f64; 7], d: DVec2| {
-        let (n1, n2) = (
-            DVec2::new(q[2].cos(), q[2].sin()),
-            DVec2::new(q[3].cos(), q[3].sin()),
-        );
-        let c = DVec2::new(q[0], q[1]);
-        let ww = q[6].exp();
-        let (d1, d2) = ((d - c).dot(n1), (d - c).dot(n2));
-        ((d1 / ww).tanh(), (d2 / ww).tanh(), d1, d2, n1, n2, ww)
+    // What the model needs of a parameter vector, computed once per vector.
+    struct Geom {
+        c: DVec2,
+        n1: DVec2,
+        n2: DVec2,
+        ww: f64,
+    }
+    let geom = |q: &[f64; 7]| Geom {
+        c: DVec2::new(q[0], q[1]),
+        n1: DVec2::new(q[2].cos(), q[2].sin()),
+        n2: DVec2::new(q[3].cos(), q[3].sin()),
+        ww: q[6].exp(),
+    };
+    let model = |g: &Geom, d: DVec2| {
+        let (d1, d2) = ((d - g.c).dot(g.n1), (d - g.c).dot(g.n2));
+        ((d1 / g.ww).tanh(), (d2 / g.ww).tanh(), d1, d2)
     };
     // m and a by linear least squares for the initial geometry.
     let lin = |q: &[f64; 7]| {
         let (mut s1, mut st, mut stt, mut sv, mut stv) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let g = geom(q);
         for &(d, v) in &px {
-            let (t1, t2, ..) = model(q, d);
+            let (t1, t2, ..) = model(&g, d);
             let t = t1 * t2;
             s1 += 1.0;
             st += t;
@@ -238,9 +246,10 @@ pub fn fit_saddle(
     q[4] = m0;
     q[5] = a0;
     let cost = |q: &[f64; 7]| {
+        let g = geom(q);
         px.iter()
             .map(|&(d, v)| {
-                let (t1, t2, ..) = model(q, d);
+                let (t1, t2, ..) = model(&g, d);
                 let r = q[4] + q[5] * t1 * t2 - v;
                 r * r
             })
@@ -251,15 +260,13 @@ pub fn fit_saddle(
     for _ in 0..50 {
         let mut jtj = [0.0; 49];
         let mut jtr = [0.0; 7];
+        let g = geom(&q);
+        let (c, n1, n2, ww) = (g.c, g.n1, g.n2, g.ww);
+        let (p1, p2) = (n1.perp(), n2.perp()); // (-sin, cos)
+        let a = q[5];
         for &(d, v) in &px {
-            let (t1, t2, d1, d2, n1, n2, ww) = model(&q, d);
-            let a = q[5];
+            let (t1, t2, d1, d2) = model(&g, d);
             let (g1, g2) = ((1.0 - t1 * t1) / ww, (1.0 - t2 * t2) / ww);
-            let c = DVec2::new(q[0], q[1]);
-            let (p1, p2) = (
-                DVec2::new(-q[2].sin(), q[2].cos()),
-                DVec2::new(-q[3].sin(), q[3].cos()),
-            );
             let dc = -(n1 * (g1 * t2) + n2 * (t1 * g2)) * a;
             let j = [
                 dc.x,
@@ -279,12 +286,12 @@ pub fn fit_saddle(
             }
         }
         let mut improved = false;
+        let neg: Vec<f64> = jtr.iter().map(|x| -x).collect();
         for _ in 0..8 {
             let mut aug = jtj;
             for i in 0..7 {
                 aug[i * 7 + i] += lambda * jtj[i * 7 + i].max(1e-12);
             }
-            let neg: Vec<f64> = jtr.iter().map(|x| -x).collect();
             let Some(step) = crate::linalg::cholesky_solve(&aug, &neg, 7) else {
                 lambda *= 10.0;
                 continue;
@@ -495,18 +502,13 @@ pub fn detect_board(
         .iter()
         .filter_map(|p| nearest(*p + best.1).map(|s| (*p, s)))
         .collect();
-    let hmap: Box<dyn Fn(DVec2) -> DVec2 + Sync> = if first.len() >= 8 {
-        let (a, b): (Vec<DVec2>, Vec<DVec2>) = first.iter().copied().unzip();
-        match crate::zhang::homography(&a, &b) {
-            Ok(hm) => Box::new(move |p: DVec2| {
-                let q = hm * glam::DVec3::new(p.x, p.y, 1.0);
-                DVec2::new(q.x / q.z, q.y / q.z)
-            }),
-            Err(_) => Box::new(move |p: DVec2| p + best.1),
-        }
-    } else {
-        Box::new(move |p: DVec2| p + best.1)
-    };
+    let hm = (first.len() >= 8)
+        .then(|| {
+            let (a, b): (Vec<DVec2>, Vec<DVec2>) = first.iter().copied().unzip();
+            crate::zhang::homography(&a, &b).ok()
+        })
+        .flatten();
+    let hmap = |p: DVec2| hm.map_or(p + best.1, |h| crate::zhang::apply(&h, p));
     let blurred = gaussian_blur(gray, w, h, 0.7);
     let radius = ((square_px * 0.3) as usize).clamp(2, 12);
     // Local board axes at each corner: given, or from the predicted neighbours.
@@ -555,10 +557,7 @@ pub fn reject_outliers(predicted: &[DVec2], mut found: Vec<Option<DVec2>>) -> Ve
         let res: Vec<f64> = a
             .iter()
             .zip(&b)
-            .map(|(p, f)| {
-                let q = hm * glam::DVec3::new(p.x, p.y, 1.0);
-                (DVec2::new(q.x / q.z, q.y / q.z) - *f).length()
-            })
+            .map(|(p, f)| (crate::zhang::apply(&hm, *p) - *f).length())
             .collect();
         let mut sorted = res.clone();
         sorted.sort_by(f64::total_cmp);

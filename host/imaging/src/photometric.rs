@@ -112,23 +112,21 @@ pub fn stripe_centres(
     grid: &crate::rectify::Grid,
     keep: impl Fn(f64) -> bool,
 ) -> Vec<DVec2> {
-    let rows: Vec<usize> = (0..rect.height)
+    // (row, column of the peak, peak value) of the kept rows with a finite texel.
+    let peaks: Vec<(usize, usize, f32)> = (0..rect.height)
         .filter(|&j| keep(grid.texel_centre(0, j).y))
+        .filter_map(|j| {
+            (0..rect.width)
+                .map(|i| (i, rect.get(i, j, c)))
+                .filter(|(_, v)| v.is_finite())
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(i, v)| (j, i, v))
+        })
         .collect();
-    let peak = |j: usize| {
-        (0..rect.width)
-            .map(|i| (i, rect.get(i, j, c)))
-            .filter(|(_, v)| v.is_finite())
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-    };
-    let brightest = rows
-        .iter()
-        .filter_map(|&j| peak(j))
-        .fold(0f32, |a, (_, v)| a.max(v));
+    let brightest = peaks.iter().fold(0f32, |a, &(.., v)| a.max(v));
     let reach = (1.5 / grid.texel_mm).ceil() as isize;
     let mut out = Vec::new();
-    for &j in &rows {
-        let Some((ip, vp)) = peak(j) else { continue };
+    for &(j, ip, vp) in &peaks {
         if !(vp > 0.1 * brightest) {
             continue;
         }

@@ -105,6 +105,11 @@ impl SimCalibrator {
     fn world(&self, preset: &str) -> Result<World> {
         let desc = SceneDesc::preset(preset)
             .map_err(|e| Error::Input(format!("sim scene {preset}: {e}")))?;
+        self.world_from(desc)
+    }
+
+    /// The simulated world of `desc` on this rig at this quality.
+    fn world_from(&self, desc: SceneDesc) -> Result<World> {
         World::new(desc, self.rig.clone(), self.quality)
             .map_err(|e| Error::Input(format!("sim world: {e}")))
     }
@@ -267,7 +272,7 @@ impl SimCalibrator {
     /// How the checkerboard frames are simulated: at most 2x binned (the lowest
     /// camera's squares are 6 px tall there, 3 px at 4x) and with at least
     /// `GEOMETRY_PHOTONS` per channel (Monte Carlo noise limits the corners).
-    pub fn geometry_quality(&self) -> SimQuality {
+    fn geometry_quality(&self) -> SimQuality {
         let mut q = self.quality;
         q.downscale = q.downscale.min(2);
         q.lamp_photons = q.lamp_photons.max(GEOMETRY_PHOTONS);
@@ -284,8 +289,7 @@ impl SimCalibrator {
         {
             *h = height_mm;
         }
-        World::new(desc, self.rig.clone(), self.quality)
-            .map_err(|e| Error::Input(format!("sim world: {e}")))
+        self.world_from(desc)
     }
 
     /// The board's corners found in one frame of camera k, the board's top at
@@ -322,14 +326,12 @@ impl SimCalibrator {
             .map(|&i| pred[i].unwrap_or_default())
             .collect();
         // Square size in pixels near the board centre, from the prediction.
-        let sq = nominal
-            .project(rz * DVec3::new(5.0, 0.0, height))
-            .zip(nominal.project(rz * DVec3::new(0.0, 0.0, height)));
-        let sq2 = nominal
-            .project(rz * DVec3::new(0.0, 5.0, height))
-            .zip(nominal.project(rz * DVec3::new(0.0, 0.0, height)));
-        let square_px = match (sq, sq2) {
-            (Some((a, o)), Some((c, _))) => (a - o).length().min((c - o).length()),
+        let square_px = match (
+            nominal.project(rz * DVec3::new(5.0, 0.0, height)),
+            nominal.project(rz * DVec3::new(0.0, 5.0, height)),
+            nominal.project(rz * DVec3::new(0.0, 0.0, height)),
+        ) {
+            (Some(a), Some(c), Some(o)) => (a - o).length().min((c - o).length()),
             _ => return None,
         };
         // The 12 x 12 squares' centres and colours (bright where floor(x/5) + floor(y/5) is odd).
@@ -348,7 +350,7 @@ impl SimCalibrator {
             .map(|&i| {
                 let p = DVec3::new(board[i].x, board[i].y, height);
                 let at = |d: DVec3| nominal.project(rz * (p + d)).unwrap_or_default();
-                let o = at(DVec3::ZERO);
+                let o = pred[i].unwrap_or_default(); // at(DVec3::ZERO)
                 (at(DVec3::X * 5.0) - o, at(DVec3::Y * 5.0) - o)
             })
             .collect();
@@ -431,8 +433,11 @@ impl SimCalibrator {
         let mut axis_samples = Vec::new();
         for (ci, &k) in self.cameras.iter().enumerate() {
             let views = &per_cam[ci];
-            let n_raised = views.iter().filter(|v| v.raised.is_some()).count();
-            if views.len() - n_raised < 2 {
+            // The views on the turntable (board origin = world origin).
+            let on_table: Vec<usize> = (0..views.len())
+                .filter(|&i| views[i].raised.is_none())
+                .collect();
+            if on_table.len() < 2 {
                 rows.push(Row {
                     quantity: format!("camera {k} checkerboard views"),
                     recovered: views.len() as f64,
@@ -454,7 +459,8 @@ impl SimCalibrator {
                 distortion: true,
                 fix_principal_point: true,
                 // The mechanical distance only when no raised view gives it.
-                centre_distance: (n_raised == 0).then_some((g.cameras[k].distance, 1.0)),
+                centre_distance: (on_table.len() == views.len())
+                    .then_some((g.cameras[k].distance, 1.0)),
                 initial_focal: Some(g.sensor.focal_px / b),
                 // The lens's centring tolerance, ~4 px at full resolution.
                 principal_sd: Some(4.0 / b),
@@ -480,10 +486,6 @@ impl SimCalibrator {
             let mut q_sum = glam::DVec4::ZERO;
             let mut t_sum = DVec3::ZERO;
             let mut q0: Option<DQuat> = None;
-            // The views on the turntable (board origin = world origin).
-            let on_table: Vec<usize> = (0..views.len())
-                .filter(|&i| views[i].raised.is_none())
-                .collect();
             for &i in &on_table {
                 let (r, t) = &res.poses[i];
                 let rcw = rodrigues(*r) * DMat3::from_rotation_z(view_thetas[i]).transpose();

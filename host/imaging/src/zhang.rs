@@ -78,7 +78,7 @@ fn normaliser(pts: &[DVec2]) -> DMat3 {
     )
 }
 
-fn apply(h: &DMat3, p: DVec2) -> DVec2 {
+pub(crate) fn apply(h: &DMat3, p: DVec2) -> DVec2 {
     let q = *h * DVec3::new(p.x, p.y, 1.0);
     DVec2::new(q.x / q.z, q.y / q.z)
 }
@@ -424,33 +424,34 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
             k2,
         }
     };
-    // Pixels of residual per standard deviation of the prior: the corners' scatter.
-    let prior_px = std::sync::atomic::AtomicU64::new(1f64.to_bits());
-    let residuals = |p: &[f64], out: &mut [f64]| {
-        let k = unpack(p);
-        let mut i = 0;
-        for (vi, v) in views.iter().enumerate() {
-            let (r, t) = pose(p, vi);
-            for (o, im) in v.object.iter().zip(&v.image) {
-                let pc = r * DVec3::new(o.x, o.y, 0.0) + t;
-                let px = k.distort_to_pixel(DVec2::new(pc.x / pc.z, pc.y / pc.z));
-                out[i] = px.x - im.x;
-                out[i + 1] = px.y - im.y;
-                i += 2;
+    // Residuals with the priors weighed by w, the pixels of residual per
+    // standard deviation of the prior (the corners' scatter).
+    let (offset, unraised) = (&offset, &unraised);
+    let residuals_w = |w: f64| {
+        move |p: &[f64], out: &mut [f64]| {
+            let k = unpack(p);
+            let mut i = 0;
+            for (vi, v) in views.iter().enumerate() {
+                let (r, t) = pose(p, vi);
+                for (o, im) in v.object.iter().zip(&v.image) {
+                    let pc = r * DVec3::new(o.x, o.y, 0.0) + t;
+                    let px = k.distort_to_pixel(DVec2::new(pc.x / pc.z, pc.y / pc.z));
+                    out[i] = px.x - im.x;
+                    out[i + 1] = px.y - im.y;
+                    i += 2;
+                }
             }
-        }
-        if let Some((d, sd)) = opts.centre_distance {
-            let w = f64::from_bits(prior_px.load(std::sync::atomic::Ordering::Relaxed));
-            for &vi in &unraised {
-                let q = &p[offset[vi]..offset[vi] + 6];
-                out[i] = w * (DVec3::new(q[3], q[4], q[5]).length() - d) / sd;
-                i += 1;
+            if let Some((d, sd)) = opts.centre_distance {
+                for &vi in unraised {
+                    let q = &p[offset[vi]..offset[vi] + 6];
+                    out[i] = w * (DVec3::new(q[3], q[4], q[5]).length() - d) / sd;
+                    i += 1;
+                }
             }
-        }
-        if let Some(sd) = pp_prior {
-            let w = f64::from_bits(prior_px.load(std::sync::atomic::Ordering::Relaxed));
-            out[i] = w * (p[2] - cx0) / sd;
-            out[i + 1] = w * (p[3] - cy0) / sd;
+            if let Some(sd) = pp_prior {
+                out[i] = w * (p[2] - cx0) / sd;
+                out[i + 1] = w * (p[3] - cy0) / sd;
+            }
         }
     };
     let steps: Vec<f64> = p
@@ -464,7 +465,8 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
             }
         })
         .collect();
-    lm::minimise(&mut p, m, &steps, 200, &residuals);
+    let residuals = residuals_w(1.0);
+    lm::minimise(&mut p, m, &steps, 200, residuals);
     let mut r = vec![0.0; m];
     residuals(&p, &mut r);
     if opts.centre_distance.is_some() || pp_prior.is_some() {
@@ -472,8 +474,8 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
         // (per coordinate), never more than one pixel per standard deviation.
         let point_cost: f64 = r[..m_points].iter().map(|x| x * x).sum();
         let scatter = (point_cost / m_points as f64).sqrt().clamp(1e-3, 1.0);
-        prior_px.store(scatter.to_bits(), std::sync::atomic::Ordering::Relaxed);
-        lm::minimise(&mut p, m, &steps, 200, &residuals);
+        let residuals = residuals_w(scatter);
+        lm::minimise(&mut p, m, &steps, 200, residuals);
         residuals(&p, &mut r);
     }
     let point_cost: f64 = r[..m_points].iter().map(|x| x * x).sum();
