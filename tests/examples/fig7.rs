@@ -36,13 +36,15 @@ use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use glam::{DMat3, DVec3, Vec3};
-use qhm_acquire::Scale;
+use glam::{DVec2, DVec3, Vec3};
+use qhm_acquire::{Manifest, Scale};
+use qhm_imaging::sim_cal::SimCalibrator;
 use qhm_model::MaterialModel;
 use qhm_render::bvh::Ray;
+use qhm_render::light::luminance;
 use qhm_render::mesh::{Mesh, MeshInput};
 use qhm_render::{Image, Light, Mode, RenderSettings, Scene, render_scene_camera};
-use sim_light::{CameraTruth, Illumination, RigTruth, SceneDesc, SimQuality, World};
+use sim_light::{Illumination, RigTruth, SceneDesc, SimQuality, World};
 
 type Res<T> = Result<T, Box<dyn Error>>;
 
@@ -99,29 +101,10 @@ fn parse_args() -> Res<Args> {
             _ => return Err(format!("unknown argument {k}").into()),
         }
     }
-    if !(1..=8).contains(&a.lamp) || !(1..=7).contains(&a.camera) {
+    if !(1..=7).contains(&a.lamp) || !(1..=7).contains(&a.camera) {
         return Err("--lamp must be 1..=7 and --camera 1..=7".into());
     }
     Ok(a)
-}
-
-/// The ray of binned pixel position (x, y) of a true rig camera, in the
-/// sample frame: the inverse of `CameraTruth::project` (radial distortion
-/// undone by fixed-point iteration).
-fn camera_ray(c: &CameraTruth, to_sample: DMat3, binning: f64, x: f64, y: f64) -> Ray {
-    let xd = (x * binning - c.principal_px[0]) / c.focal_px[0];
-    let yd = (y * binning - c.principal_px[1]) / c.focal_px[1];
-    let (mut xu, mut yu) = (xd, yd);
-    for _ in 0..20 {
-        let r2 = xu * xu + yu * yu;
-        let d = 1.0 + c.k1 * r2 + c.k2 * r2 * r2;
-        (xu, yu) = (xd / d, yd / d);
-    }
-    let d_world = c.rotation_mat().transpose() * DVec3::new(xu, yu, 1.0).normalize();
-    Ray {
-        o: (to_sample * c.position_vec()).as_vec3(),
-        d: (to_sample * d_world).normalize().as_vec3(),
-    }
 }
 
 /// The slab's top face z = 0 as two triangles, UV in mm from the rectified
@@ -147,8 +130,8 @@ fn top_face(half: [f32; 2], origin_mm: [f32; 2]) -> Res<Mesh> {
     Ok(Mesh::build(input, Some(1.0))?)
 }
 
-fn luminance(p: [f32; 3]) -> f64 {
-    0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
+fn lum(p: [f32; 3]) -> f64 {
+    luminance(Vec3::from_array(p)) as f64
 }
 
 #[derive(Default, Clone)]
@@ -196,7 +179,7 @@ fn stats(
     c: usize,
 ) -> Channel {
     let val = |p: &[f32; 3]| {
-        if c == 3 { luminance(*p) } else { p[c] as f64 }
+        if c == 3 { lum(*p) } else { p[c] as f64 }
     };
     let idx: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
     let n = idx.len() as f64;
@@ -258,16 +241,6 @@ fn stats(
     }
 }
 
-fn srgb8(c: f64) -> u8 {
-    let c = c.clamp(0.0, 1.0);
-    let s = if c <= 0.003_130_8 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    };
-    (s * 255.0 + 0.5) as u8
-}
-
 /// Path tracer | model | difference, each upscaled 2x; both renders with
 /// one exposure, the difference of 4 x 4 pixel block means in luminance as
 /// red (model brighter) or blue (darker), full colour at +-25 % of the
@@ -280,35 +253,28 @@ fn side_by_side(pt: &Image, model: &Image, mask: &[bool], mean_lum: f64, path: &
     let total_w = 3 * pw + 2 * gap;
     let total_h = h * up;
     let mut buf = vec![255u8; total_w * total_h * 3];
-    let k = 1.0 / (2.5 * mean_lum.max(1e-30));
+    let k = (1.0 / (2.5 * mean_lum.max(1e-30))) as f32;
+    let (pt_srgb, model_srgb) = (pt.tone_mapped(Some(k)), model.tone_mapped(Some(k)));
     // Luminance difference of 4 x 4 pixel block means (pixel-level Monte
     // Carlo noise of both images would hide everything else).
-    let diff4: Vec<f64> = (0..w * h)
-        .map(|i| {
-            let (bx, by) = ((i % w) / 4 * 4, (i / w) / 4 * 4);
-            let mut d = 0.0;
-            let mut n = 0.0;
-            for y in by..(by + 4).min(h) {
-                for x in bx..(bx + 4).min(w) {
-                    let j = y * w + x;
-                    d += luminance(model.pixels[j]) - luminance(pt.pixels[j]);
-                    n += 1.0;
-                }
-            }
-            d / n
-        })
-        .collect();
-    let tone = |c: f32| srgb8(1.0 - (-(c.max(0.0) as f64) * k).exp());
+    let bw = w.div_ceil(4);
+    let mut blocks = vec![(0.0f64, 0.0f64); bw * h.div_ceil(4)];
+    for (i, (m, p)) in model.pixels.iter().zip(&pt.pixels).enumerate() {
+        let b = &mut blocks[(i / w / 4) * bw + (i % w) / 4];
+        b.0 += lum(*m) - lum(*p);
+        b.1 += 1.0;
+    }
+    let diff4: Vec<f64> = blocks.into_iter().map(|(d, n)| d / n).collect();
     for y in 0..total_h {
         for x in 0..pw {
             let i = (y / up) * w + x / up;
-            let mut put = |panel: usize, rgb: [u8; 3]| {
+            let mut put = |panel: usize, rgb: &[u8]| {
                 let o = (y * total_w + panel * (pw + gap) + x) * 3;
-                buf[o..o + 3].copy_from_slice(&rgb);
+                buf[o..o + 3].copy_from_slice(rgb);
             };
-            put(0, pt.pixels[i].map(tone));
-            put(1, model.pixels[i].map(tone));
-            let d = diff4[i] / (0.25 * mean_lum);
+            put(0, &pt_srgb[3 * i..3 * i + 3]);
+            put(1, &model_srgb[3 * i..3 * i + 3]);
+            let d = diff4[(y / up / 4) * bw + x / up / 4] / (0.25 * mean_lum);
             let d = d.clamp(-1.0, 1.0);
             let a = if mask[i] { 1.0 } else { 0.35 };
             let (r, g, b) = if d >= 0.0 {
@@ -317,7 +283,7 @@ fn side_by_side(pt: &Image, model: &Image, mask: &[bool], mean_lum: f64, path: &
                 (1.0 + d, 1.0 + d, 1.0)
             };
             let px = [r, g, b].map(|v| ((v * a + (1.0 - a) * 0.5) * 255.0) as u8);
-            put(2, px);
+            put(2, &px);
         }
     }
     if let Some(dir) = path.parent() {
@@ -353,9 +319,11 @@ fn main() -> Res<()> {
         };
         host::demo::run(&opts)?;
     }
-    let manifest = std::fs::read_to_string(a.out.join("capture/capture.toml"))?;
     // The capture's sample and seed (the world must be the one measured).
-    let capture: toml_lite::Capture = toml_lite::parse(&manifest)?;
+    let capture: Manifest = toml::from_str(&std::fs::read_to_string(
+        a.out.join("capture/capture.toml"),
+    )?)?;
+    let capture_scale = capture.plan.scale.name();
     if capture.sample != a.sample || capture.seed != a.seed {
         return Err(format!(
             "{} holds a capture of {:?} seed {}, not {:?} seed {}",
@@ -421,8 +389,9 @@ fn main() -> Res<()> {
     let halves: Vec<Vec<[f32; 3]>> = [0x5eed_0001u64, 0x5eed_0002]
         .iter()
         .map(|&s| -> Res<Vec<[f32; 3]>> {
-            let pose = world.render_pose(&illum, 1 << a.camera, a.seed ^ s)?;
-            Ok(pose.image(a.camera).ok_or("no image")?.data.clone())
+            let mut pose = world.render_pose(&illum, 1 << a.camera, a.seed ^ s)?;
+            let image = pose.images.get_mut(a.camera).and_then(Option::take);
+            Ok(image.ok_or("no image")?.data)
         })
         .collect::<Res<_>>()?;
     let (w, h) = world.image_size();
@@ -447,10 +416,17 @@ fn main() -> Res<()> {
         to_light: to_light.as_vec3(),
         irradiance: Vec3::from_array(e_lamp.map(|e| e as f32)),
     }];
-    scene.env = None;
-    let cam = rig.cameras[a.camera].clone();
-    let binning = a.downscale as f64;
-    let ray = |x: f32, y: f32| Some(camera_ray(&cam, to_sample, binning, x as f64, y as f64));
+    // The true camera at the binning, in the sample frame. Its pixel centres
+    // are at integers, the film's at integer + 0.5.
+    let cam = SimCalibrator::new(a.seed, quality).true_camera(a.camera);
+    let origin = (to_sample * cam.centre()).as_vec3();
+    let camera_ray = |x: f64, y: f64| Ray {
+        o: origin,
+        d: (to_sample * cam.ray(DVec2::new(x - 0.5, y - 0.5)))
+            .normalize()
+            .as_vec3(),
+    };
+    let ray = |x: f32, y: f32| camera_ray(x as f64, y as f64);
     let mut settings = RenderSettings {
         width: w,
         height: h,
@@ -476,13 +452,7 @@ fn main() -> Res<()> {
     );
     let mask: Vec<bool> = (0..(w * h) as usize)
         .map(|i| {
-            let r = camera_ray(
-                &cam,
-                to_sample,
-                binning,
-                (i % w as usize) as f64 + 0.5,
-                (i / w as usize) as f64 + 0.5,
-            );
+            let r = camera_ray((i % w as usize) as f64 + 0.5, (i / w as usize) as f64 + 0.5);
             if r.d.z >= 0.0 {
                 return false;
             }
@@ -517,7 +487,7 @@ fn main() -> Res<()> {
          {:.1} x {:.1} mm measured patch",
         a.sample,
         a.seed,
-        capture.scale,
+        capture_scale,
         a.camera,
         a.lamp,
         a.arc_deg,
@@ -568,18 +538,22 @@ fn main() -> Res<()> {
     let pt_img = Image {
         width: w,
         height: h,
-        pixels: pt.clone(),
+        pixels: pt,
     };
     pt_img.write_exr(&dir.join("path_tracer.exr"))?;
     full.write_exr(&dir.join("model.exr"))?;
     local.write_exr(&dir.join("model_lrf_only.exr"))?;
     let mean_lum = chans[3].mean_path_tracer;
-    side_by_side(&pt_img, &full, &mask, mean_lum, &dir.join("compare.png"))?;
+    let compare = dir.join("compare.png");
+    side_by_side(&pt_img, &full, &mask, mean_lum, &compare)?;
     if let Some(p) = &a.png {
-        side_by_side(&pt_img, &full, &mask, mean_lum, p)?;
+        if let Some(parent) = p.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::copy(&compare, p)?;
     }
     let summary = serde_json::json!({
-        "sample": a.sample, "scale": capture.scale, "seed": a.seed, "camera": a.camera,
+        "sample": a.sample, "scale": capture_scale, "seed": a.seed, "camera": a.camera,
         "lamp": a.lamp, "arc_deg": a.arc_deg, "turntable_deg": a.turntable_deg,
         "to_light": to_light.to_array(), "irradiance_w_m2": e_lamp,
         "nearest_captured_light_deg": nearest_captured,
@@ -594,29 +568,4 @@ fn main() -> Res<()> {
     )?;
     eprintln!("wrote {}", dir.display());
     Ok(())
-}
-
-/// The two fields of capture.toml this example needs, without a TOML
-/// dependency in this crate's example.
-mod toml_lite {
-    pub struct Capture {
-        pub sample: String,
-        pub seed: u64,
-        pub scale: String,
-    }
-    pub fn parse(text: &str) -> Result<Capture, String> {
-        let field = |k: &str| {
-            text.lines()
-                .find_map(|l| {
-                    let (key, v) = l.split_once('=')?;
-                    (key.trim() == k).then(|| v.trim().trim_matches('"').to_string())
-                })
-                .ok_or(format!("capture.toml: no {k}"))
-        };
-        Ok(Capture {
-            sample: field("sample")?,
-            seed: field("seed")?.parse().map_err(|e| format!("seed: {e}"))?,
-            scale: field("scale")?,
-        })
-    }
 }

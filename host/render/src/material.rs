@@ -34,7 +34,8 @@ pub trait Material: Sync {
         true
     }
     /// Radius of the local disc A_o (mm) whose scattering the LRF holds:
-    /// eq. 4's dipole sum runs over the surface outside it. 0 = none.
+    /// eq. 4's dipole sum runs over the surface outside it. 0 = none. Only
+    /// consulted when [`Material::has_lrf`].
     fn local_disc_mm(&self) -> f32 {
         0.0
     }
@@ -96,11 +97,7 @@ impl Material for qhm_model::MaterialModel {
     /// The texel's equal-area disc: the fit's LRF keeps R_d integrated over
     /// it (docs/model-format.md, "LRF").
     fn local_disc_mm(&self) -> f32 {
-        if self.lrf.samples.is_empty() {
-            0.0
-        } else {
-            self.texel_mm / std::f32::consts::PI.sqrt()
-        }
+        self.texel_mm / std::f32::consts::PI.sqrt()
     }
 }
 

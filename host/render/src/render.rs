@@ -198,8 +198,8 @@ pub struct Prepared {
     pub rd: RdTable,
     pub texture: SynthTexture,
     eta: f64,
-    /// 1 / (1 - F̄): normalises the plain dipole's Fresnel exit.
-    exit_norm: f64,
+    /// F̄, the hemispherical mean of F_r: normalises the plain dipole's exit.
+    fresnel_average: f64,
 }
 
 /// Builds the surface samples, their irradiance, the octree and the
@@ -246,7 +246,7 @@ pub fn prepare<M: Material>(
     let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
     // Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
     let hole = if settings.mode.has_lrf() && material.has_lrf() {
-        material.local_disc_mm().max(0.0)
+        material.local_disc_mm()
     } else {
         0.0
     };
@@ -273,7 +273,7 @@ pub fn prepare<M: Material>(
         rd,
         texture,
         eta: dipole.eta,
-        exit_norm: 1.0 / (1.0 - qhm_model::dipole::fresnel_hemispherical_average(dipole.eta)),
+        fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
     })
 }
 
@@ -293,14 +293,14 @@ pub fn render_scene_stats<M: Material>(
     settings: &RenderSettings,
 ) -> Result<(Image, RenderStats), RenderError> {
     render_scene_camera(scene, material, settings, |x, y| {
-        Some(scene.camera.ray(x, y, settings.width, settings.height))
+        scene.camera.ray(x, y, settings.width, settings.height)
     })
 }
 
 /// [`render_scene_stats`] through the caller's camera model instead of
 /// `scene.camera`: `ray(x, y)` is the ray through film position (x, y) in
 /// pixels of the `settings.width` x `settings.height` image (origin top
-/// left, pixel i spanning [i, i + 1)), or `None` to leave that sample black.
+/// left, pixel i spanning [i, i + 1)).
 /// For cameras the pinhole [`crate::Camera`] cannot express, e.g. a
 /// calibrated camera with lens distortion (the Fig. 7 comparison renders
 /// through the simulated rig's camera).
@@ -311,7 +311,7 @@ pub fn render_scene_camera<M: Material, F>(
     ray: F,
 ) -> Result<(Image, RenderStats), RenderError>
 where
-    F: Fn(f32, f32) -> Option<Ray> + Sync,
+    F: Fn(f32, f32) -> Ray + Sync,
 {
     let t0 = Instant::now();
     let mut stats = RenderStats::default();
@@ -339,7 +339,7 @@ fn render_pixels<M: Material, F>(
     camera: &F,
 ) -> (Image, u64, u64)
 where
-    F: Fn(f32, f32) -> Option<Ray> + Sync,
+    F: Fn(f32, f32) -> Ray + Sync,
 {
     let (w, h) = (settings.width, settings.height);
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
@@ -375,9 +375,7 @@ where
                         for b in 0..m {
                             let px = x as f32 + (a as f32 + rng.random::<f32>()) / m as f32;
                             let py = y as f32 + (b as f32 + rng.random::<f32>()) / m as f32;
-                            let Some(ray) = camera(px, py) else {
-                                continue;
-                            };
+                            let ray = camera(px, py);
                             sum += radiance(
                                 scene,
                                 material,
@@ -503,10 +501,15 @@ fn radiance<M: Material>(
             }
         };
         let exit = if settings.mode.plain_dipole() {
-            // Normalised: ∫ (1 - F_r(w_o)) / ((1 - F̄) pi) cos dw_o = 1, so
-            // the exitance stays Σ R_d E A (see the module comment).
-            let ft = 1.0 - qhm_model::dipole::fresnel_dielectric(wo_l.z as f64, prep.eta);
-            Vec3::splat((ft * prep.exit_norm) as f32 / PI)
+            // Normalised: (1 - F_r(w_o)) / ((1 - F̄) pi) integrates to 1
+            // against cos dw_o, so the exitance stays Σ R_d E A (see the
+            // module comment).
+            let per_radiance = qhm_model::dipole::exitance_per_radiance(
+                wo_l.z as f64,
+                prep.eta,
+                prep.fresnel_average,
+            );
+            Vec3::splat((1.0 / per_radiance) as f32)
         } else {
             Vec3::from(material.exiting(uv, wo_l.to_array())) / PI
         };
