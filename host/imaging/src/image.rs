@@ -91,6 +91,35 @@ impl ImageF {
         let v11 = self.get(x1, y1, c);
         (v00 * (1.0 - fx) + v10 * fx) * (1.0 - fy) + (v01 * (1.0 - fx) + v11 * fx) * fy
     }
+    /// Adds `weight` times the bilinear lookup at (x, y) to `out`, every
+    /// channel at once (the weights computed once); NaN outside the image.
+    pub fn bilinear_add(&self, x: f64, y: f64, weight: f32, out: &mut [f32]) {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as f64 && y <= (self.height - 1) as f64)
+        {
+            out.fill(f32::NAN);
+            return;
+        }
+        let x0 = (x.floor() as usize).min(self.width.saturating_sub(2));
+        let y0 = (y.floor() as usize).min(self.height.saturating_sub(2));
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let w = [
+            (1.0 - fx) * (1.0 - fy) * weight,
+            fx * (1.0 - fy) * weight,
+            (1.0 - fx) * fy * weight,
+            fx * fy * weight,
+        ];
+        let ch = self.channels;
+        let at = |x: usize, y: usize| (y * self.width + x) * ch;
+        let corners = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
+        for (c, o) in out.iter_mut().enumerate().take(ch) {
+            *o += corners
+                .iter()
+                .zip(w)
+                .map(|(&k, w)| self.data[k + c] * w)
+                .sum::<f32>();
+        }
+    }
 }
 
 /// Bilinear lookup in a single-channel f32 plane (no NaN handling needed).

@@ -2,9 +2,12 @@
 //! at the texel centres of the sample's top surface (z = 0 in the sample frame,
 //! which turns with the turntable), and laser stripe lines.
 //!
-//! For texel centre p (sample frame), the world point is R_axis(theta) p; the
+//! For a point p of the sample frame, the world point is R_axis(theta) p; the
 //! calibrated camera projects it (with distortion) to a pixel, and the image is
-//! sampled bilinearly there. Stripes: texels brighter than a threshold give a
+//! sampled bilinearly there. A texel is the mean of such samples over its
+//! area, at most half a pixel apart: sums over texels then keep the
+//! flux of features a pixel wide (a stripe's core), which a texel-centre
+//! sample alone aliases by several per cent at CI scale. Stripes: texels brighter than a threshold give a
 //! line by weighted total least squares; texels are kept within a distance
 //! interval from that line, with their distances.
 
@@ -89,6 +92,22 @@ pub fn rectify_at_height(
     let r_cs = cam.rotation_matrix() * sample_to_world(axis, theta);
     let t = DVec3::from(cam.translation);
     let k = cam.intrinsics;
+    let to_pixel = |p: DVec2| {
+        let pc = r_cs * DVec3::new(p.x, p.y, plane_z) + t;
+        (pc.z > 1e-9).then(|| k.distort_to_pixel(DVec2::new(pc.x / pc.z, pc.y / pc.z)))
+    };
+    let n = subsamples_per_side(grid, &to_pixel);
+    // Sub-sample offsets as fractions of the half-texel axes: within a texel
+    // the projection is affine to well below a pixel, so each texel projects
+    // three points and its samples follow from them.
+    let offsets: Vec<(f64, f64)> = (0..n * n)
+        .map(|s| {
+            let at = |m: usize| (2 * m + 1) as f64 / n as f64 - 1.0;
+            (at(s % n), at(s / n))
+        })
+        .collect();
+    let weight = 1.0 / offsets.len() as f32;
+    let half = 0.5 * grid.texel_mm;
     let ch = img.channels;
     let mut out = ImageF::zeros(grid.width, grid.height, ch);
     out.data
@@ -96,19 +115,41 @@ pub fn rectify_at_height(
         .enumerate()
         .for_each(|(j, row)| {
             for i in 0..grid.width {
-                let p = grid.texel_centre(i, j);
-                let pc = r_cs * DVec3::new(p.x, p.y, plane_z) + t;
-                let px =
-                    (pc.z > 1e-9).then(|| k.distort_to_pixel(DVec2::new(pc.x / pc.z, pc.y / pc.z)));
-                for c in 0..ch {
-                    row[i * ch + c] = match px {
-                        Some(q) => img.bilinear(q.x, q.y, c) * scale.get(c).copied().unwrap_or(1.0),
-                        None => f32::NAN,
-                    };
+                let centre = grid.texel_centre(i, j);
+                let texel = &mut row[i * ch..(i + 1) * ch];
+                let axes = (
+                    to_pixel(centre),
+                    to_pixel(centre + DVec2::X * half),
+                    to_pixel(centre + DVec2::Y * half),
+                );
+                let (Some(q), Some(qx), Some(qy)) = axes else {
+                    texel.fill(f32::NAN);
+                    continue;
+                };
+                let (ax, ay) = (qx - q, qy - q);
+                texel.fill(0.0);
+                for &(u, v) in &offsets {
+                    let p = q + ax * u + ay * v;
+                    img.bilinear_add(p.x, p.y, weight, texel);
+                }
+                for (c, v) in texel.iter_mut().enumerate() {
+                    *v *= scale.get(c).copied().unwrap_or(1.0);
                 }
             }
         });
     out
+}
+
+/// Samples per texel side so that they are at most half a pixel apart
+/// (measured at the grid's centre; 1 to 8).
+fn subsamples_per_side(grid: &Grid, to_pixel: &impl Fn(DVec2) -> Option<DVec2>) -> usize {
+    let c = grid.texel_centre(grid.width / 2, grid.height / 2);
+    let Some(p) = to_pixel(c) else { return 1 };
+    let texel_px = [DVec2::X, DVec2::Y]
+        .iter()
+        .filter_map(|&d| to_pixel(c + d * grid.texel_mm).map(|q| q.distance(p)))
+        .fold(0.0f64, f64::max);
+    (2.0 * texel_px).ceil().clamp(1.0, 8.0) as usize
 }
 
 /// Unit vector from the sample-frame origin towards a world point (camera, laser), sample frame.

@@ -71,6 +71,11 @@ fn mn_options() -> MnOptions {
 /// Lamp photons per channel of a checkerboard frame, at least.
 const GEOMETRY_PHOTONS: u64 = 400_000;
 
+/// Lamp photons per channel of the colour-pattern frame, at least: the
+/// patch means of two cameras share photons only where their pixels cover
+/// the same texels, so at 40 k (ci) the gains were off by up to 4 %.
+const COLOUR_PHOTONS: u64 = 1_000_000;
+
 /// Thickness of the spacer block the checkerboard is also imaged on, mm: the
 /// image scale's change with this known depth change separates focal length
 /// and distance, which the flat board alone cannot for the top camera.
@@ -95,6 +100,16 @@ impl SimCalibrator {
             quality,
             seed,
             cameras: (1..8).collect(),
+        }
+    }
+
+    /// The same rig and seed, simulated at `quality` with `cameras`.
+    fn with(&self, quality: SimQuality, cameras: Vec<usize>) -> SimCalibrator {
+        SimCalibrator {
+            rig: self.rig.clone(),
+            quality,
+            seed: self.seed,
+            cameras,
         }
     }
 
@@ -279,6 +294,18 @@ impl SimCalibrator {
         q
     }
 
+    /// How the colour-pattern frame is simulated: at most 2x binned (at 8x a
+    /// patch's central half is 4 x 4 pixels, and the patch edges blur into
+    /// it) and with at least `COLOUR_PHOTONS` per channel. Colour gains are
+    /// ratios of linear values, so they hold at any binning (seed 2, ci: the
+    /// worst camera from 4.2 to 1.2 %).
+    fn colour_quality(&self) -> SimQuality {
+        let mut q = self.quality;
+        q.downscale = q.downscale.min(2);
+        q.lamp_photons = q.lamp_photons.max(COLOUR_PHOTONS);
+        q
+    }
+
     /// The checkerboard scene, the board on a spacer of `height_mm` (0: on the turntable).
     fn checkerboard_world(&self, height_mm: f64) -> Result<World> {
         let mut desc = SceneDesc::preset("checkerboard")
@@ -378,13 +405,7 @@ impl SimCalibrator {
     pub fn geometry(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
         let q = self.geometry_quality();
         if q != self.quality {
-            let sim = SimCalibrator {
-                rig: self.rig.clone(),
-                quality: q,
-                seed: self.seed,
-                cameras: self.cameras.clone(),
-            };
-            return sim.geometry(cal, rows);
+            return self.with(q, self.cameras.clone()).geometry(cal, rows);
         }
         let thetas: Vec<f64> = (0..6).map(|i| i as f64 * PI / 3.0 + 0.2).collect();
         let b = self.binning() as f64;
@@ -591,6 +612,10 @@ impl SimCalibrator {
 
     /// Relative colour of the cameras from the colour pattern (reference: the top camera).
     pub fn colour(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
+        let q = self.colour_quality();
+        if q != self.quality {
+            return self.with(q, self.cameras.clone()).colour(cal, rows);
+        }
         let world = self.world("colour-pattern")?;
         let exposures = [0.005, 0.02, 0.08];
         let brackets = self.capture(&world, &self.lamp_illum(0.0, 7), &exposures, 2)?;
@@ -698,22 +723,15 @@ impl SimCalibrator {
                 lamp.elevation.sin(),
             );
             let exposures = [0.01, 0.04, 0.16, 0.64];
-            let frames = {
-                let mut one = SimCalibrator {
-                    rig: self.rig.clone(),
-                    quality: self.quality,
-                    seed: self.seed,
-                    cameras: vec![k],
-                };
-                one.cameras = vec![k];
-                one.capture(
+            let frames = self
+                .with(self.quality, vec![k])
+                .capture(
                     &world,
                     &self.lamp_illum(0.0, li),
                     &exposures,
                     300 + li as u64,
                 )?
-                .remove(0)
-            };
+                .remove(0);
             let hdr = self.merged(cal, k, &frames, &exposures)?;
             let grid = Grid::centred(200, 0.1);
             let rect =
@@ -763,23 +781,13 @@ impl SimCalibrator {
             .camera(k)
             .and_then(|c| c.colour_gain)
             .unwrap_or([1.0; 3]);
-        let one = SimCalibrator {
-            rig: self.rig.clone(),
-            quality: self.quality,
-            seed: self.seed,
-            cameras: vec![k],
-        };
+        let one = self.with(self.quality, vec![k]);
         let g = hardware::NOMINAL_GEOMETRY;
         // The plane angle is measured with a mid-elevation camera (chosen when the top
         // one's focal rested on a distance prior; kept, docs/imaging.md).
         let k_geo = if self.cameras.contains(&4) { 4 } else { k };
         let cam_geo = self.cam_at_binning(cal, k_geo)?;
-        let one_geo = SimCalibrator {
-            rig: self.rig.clone(),
-            quality: self.quality,
-            seed: self.seed,
-            cameras: vec![k_geo],
-        };
+        let one_geo = self.with(self.quality, vec![k_geo]);
         let mut angles = Vec::new();
         // Two-height target (sample y < 0 low, y >= 0 high). The simulated stripe is
         // infinitely thin, so its image is a one-pixel line; along world y (light arc
@@ -868,7 +876,11 @@ impl SimCalibrator {
                 .capture(&world, &illum, &exposures, 500 + c as u64)?
                 .remove(0);
             let hdr = self.merged(cal, k, &frames, &exposures)?;
-            let grid = Grid::centred(200, 0.2);
+            // Texels far finer than a pixel: the stripe's image is a line one
+            // pixel wide, and its bilinear interpolant summed on 0.2 mm texels
+            // aliased (seed 3, ci: the flux -1.7, -2.7, -3.1 %; at 0.05 mm
+            // -0.0, -1.0, -1.4 %).
+            let grid = Grid::centred(800, 0.05);
             let mut scale = [0f32; 3];
             scale[c] = gain[c] as f32;
             let rect = rectify::rectify(&hdr, &cam, cal.axis(), 0.0, &grid, &scale);

@@ -159,6 +159,56 @@ impl EnteringDipole {
     }
 }
 
+/// Radiance summed by distance from a stripe's line in bins of `width` mm,
+/// with the summed distances (each bin's mean distance) and texel counts.
+struct DistanceBins {
+    width: f64,
+    sum: Vec<f64>,
+    dsum: Vec<f64>,
+    count: Vec<u64>,
+}
+
+impl DistanceBins {
+    fn new(width: f64, d_max: f64) -> Self {
+        let n = (d_max / width).ceil() as usize + 1;
+        DistanceBins {
+            width,
+            sum: vec![0.0; n],
+            dsum: vec![0.0; n],
+            count: vec![0; n],
+        }
+    }
+    fn add(&mut self, d: f64, value: f64) {
+        let b = (d / self.width) as usize;
+        if b < self.sum.len() {
+            self.sum[b] += value;
+            self.dsum[b] += d;
+            self.count[b] += 1;
+        }
+    }
+    fn merged(mut self, other: DistanceBins) -> Self {
+        for b in 0..self.sum.len() {
+            self.sum[b] += other.sum[b];
+            self.dsum[b] += other.dsum[b];
+            self.count[b] += other.count[b];
+        }
+        self
+    }
+    /// Mean radiance per bin (None: no texel).
+    fn means(&self) -> Vec<Option<f64>> {
+        (0..self.sum.len())
+            .map(|b| (self.count[b] > 0).then(|| self.sum[b] / self.count[b] as f64))
+            .collect()
+    }
+    /// (mean distance, mean radiance) of the bins that hold texels.
+    fn points(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        (0..self.sum.len()).filter(|&b| self.count[b] > 0).map(|b| {
+            let n = self.count[b] as f64;
+            (self.dsum[b] / n, self.sum[b] / n)
+        })
+    }
+}
+
 /// R = 2 ∫ I(d) dd from I(d) binned at `bin` mm (None: no valid texel).
 /// Measured bins count as they are; unmeasured bins below the last measured
 /// one (the stripe's near field, masked) come from the dipole `dp` when
@@ -241,13 +291,13 @@ pub fn fit_capture(
                 "no pass-2 (vertical stripe) images for channel {c}"
             )));
         }
-        let n_bins = (diag_max / bin).ceil() as usize + 1;
-        // Per image: (sum, count) per distance bin, merged.
-        // Per bin: Σ I, Σ d and the count; points sit at the mean distance of
-        // their texels, so uneven coverage inside a bin does not bias the fit.
-        let (sum, dsum, count) = entries
+        // Per image, merged: the profile in fine bins for the s'_t fit, and
+        // in texel-wide bins for R. A texel is an area mean, so the texels
+        // of a texel-wide bin sum to the flux across the line; finer bins
+        // leave gaps between texel distances that only the dipole could fill.
+        let (fine, coarse) = entries
             .par_iter()
-            .map(|s| -> Result<(Vec<f64>, Vec<f64>, Vec<u64>), ModelError> {
+            .map(|s| -> Result<(DistanceBins, DistanceBins), ModelError> {
                 let img = data.read_image(&s.file)?;
                 let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average)
                     / s.flux_per_mm;
@@ -256,46 +306,33 @@ pub fn fit_capture(
                 } else {
                     0.0
                 };
-                let mut sum = vec![0.0; n_bins];
-                let mut dsum = vec![0.0; n_bins];
-                let mut count = vec![0u64; n_bins];
+                let mut fine = DistanceBins::new(bin, diag_max);
+                let mut coarse = DistanceBins::new(grid.texel_mm, diag_max);
                 for j in 0..h {
                     for i in 0..w {
                         let l = img.get(i, j)[c as usize] as f64;
-                        if !l.is_finite() {
-                            continue;
-                        }
                         let d = s.distance(grid.centre(i, j));
-                        let b = (d / bin) as usize;
-                        if b < n_bins && d >= skip {
-                            sum[b] += k * l;
-                            dsum[b] += d;
-                            count[b] += 1;
+                        if l.is_finite() && d >= skip {
+                            fine.add(d, k * l);
+                            coarse.add(d, k * l);
                         }
                     }
                 }
-                Ok((sum, dsum, count))
+                Ok((fine, coarse))
             })
             .try_reduce(
-                || (vec![0.0; n_bins], vec![0.0; n_bins], vec![0u64; n_bins]),
-                |mut a, b| {
-                    for k in 0..n_bins {
-                        a.0[k] += b.0[k];
-                        a.1[k] += b.1[k];
-                        a.2[k] += b.2[k];
-                    }
-                    Ok(a)
+                || {
+                    (
+                        DistanceBins::new(bin, diag_max),
+                        DistanceBins::new(grid.texel_mm, diag_max),
+                    )
                 },
+                |a, b| Ok((a.0.merged(b.0), a.1.merged(b.1))),
             )?;
-        let means: Vec<Option<f64>> = (0..n_bins)
-            .map(|k| (count[k] > 0).then(|| sum[k] / count[k] as f64))
-            .collect();
-        let profile = Profile::new(
-            (0..n_bins)
-                .filter(|&k| count[k] > 0)
-                .map(|k| (dsum[k] / count[k] as f64, sum[k] / count[k] as f64)),
-            0.0,
-        );
+        // Points sit at the mean distance of their texels, so uneven
+        // coverage inside a bin does not bias the fit.
+        let profile = Profile::new(fine.points(), 0.0);
+        let means = coarse.means();
         if profile.distance_mm.len() < 5 {
             return Err(ModelError::Fit(format!(
                 "channel {c}: only {} distance bins have valid texels",
@@ -309,7 +346,7 @@ pub fn fit_capture(
         }
         // R and the fit depend on each other only through the dipole's fill
         // of the unmeasured near field: a few rounds converge.
-        let mut r = reflectance_from_profile(&means, bin, None);
+        let mut r = reflectance_from_profile(&means, grid.texel_mm, None);
         let mut fit = None;
         // The automatic range is chosen once, with the first R.
         let mut range = opts.range;
@@ -329,7 +366,7 @@ pub fn fit_capture(
             };
             let dp = EnteringDipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
             fit = Some((r_used, f));
-            let next = reflectance_from_profile(&means, bin, Some(&dp));
+            let next = reflectance_from_profile(&means, grid.texel_mm, Some(&dp));
             if (next - r).abs() < 1e-9 * r {
                 break;
             }
@@ -728,27 +765,17 @@ fn band_extent(s: &StripeEntry, grid: &crate::rectified::Grid) -> f64 {
 /// radiance (over its finite texels) times the bin width.
 fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reach: f64) -> f64 {
     let c = s.channel as usize;
-    let bin = grid.texel_mm;
-    let n = (2.0 * reach / bin).ceil() as usize;
-    let (mut sum, mut count) = (vec![0.0; n], vec![0u32; n]);
+    let mut bins = DistanceBins::new(grid.texel_mm, 2.0 * reach);
     for j in 0..grid.height as usize {
         for i in 0..grid.width as usize {
             let d = s.signed_distance(grid.centre(i, j));
-            if d.abs() > reach {
-                continue;
-            }
-            let b = (((d + reach) / bin) as usize).min(n - 1);
             let l = img.get(i, j)[c] as f64;
-            if l.is_finite() {
-                sum[b] += l;
-                count[b] += 1;
+            if d.abs() <= reach && l.is_finite() {
+                bins.add(d + reach, l);
             }
         }
     }
-    (0..n)
-        .filter(|&b| count[b] > 0)
-        .map(|b| sum[b] / count[b] as f64 * bin)
-        .sum()
+    bins.means().into_iter().flatten().sum::<f64>() * grid.texel_mm
 }
 
 #[cfg(test)]
