@@ -8,12 +8,22 @@ use glam::Vec3;
 use sim_light::*;
 
 fn slab(sigma_s: f64, sigma_a: f64, roughness: f64, size: [f64; 3]) -> SceneDesc {
+    slab_with_eta(sigma_s, sigma_a, roughness, size, 1.3)
+}
+
+fn slab_with_eta(
+    sigma_s: f64,
+    sigma_a: f64,
+    roughness: f64,
+    size: [f64; 3],
+    eta: f64,
+) -> SceneDesc {
     SceneDesc::Sample(SampleDesc {
         name: "test".into(),
         size_mm: size,
         seed: 0,
         surface: SurfaceDesc {
-            eta: 1.3,
+            eta,
             roughness,
             ..SurfaceDesc::default()
         },
@@ -92,8 +102,12 @@ fn absorbed_exited_escaped_sum_to_input() {
 }
 
 fn diffuse_reflectance(a: f64, photons: u64, seed: u64) -> (f64, f64) {
+    diffuse_reflectance_at(a, 1.3, photons, seed)
+}
+
+fn diffuse_reflectance_at(a: f64, eta: f64, photons: u64, seed: u64) -> (f64, f64) {
     // s'_t = 1 mm^-1, semi-infinite (walls 400 mm away), smooth boundary
-    let w = world(slab(a, 1.0 - a, 0.0, [800.0, 800.0, 400.0]));
+    let w = world(slab_with_eta(a, 1.0 - a, 0.0, [800.0, 800.0, 400.0], eta));
     let t = w.trace(&pencil(), 0, photons, seed, None);
     assert!(t.balanced());
     let n = (t.launched - t.reflected) as f64;
@@ -122,6 +136,50 @@ fn semi_infinite_reflectance_near_jensen_buhler() {
         let rel = (r - jb) / jb;
         eprintln!("a' = {a}: MC R = {r:.4} +- {s:.4}, Jensen-Buhler {jb:.4}, rel {rel:+.3}");
         assert!(rel.abs() < tol, "a' {a}: MC {r} vs JB {jb}");
+    }
+}
+
+/// H(1) of Chandrasekhar's H-function for isotropic scattering of albedo
+/// `a`: H(μ) = 1 / (1 - (a/2) μ ∫ H(μ')/(μ + μ') dμ'), iterated on a
+/// midpoint grid (200 nodes: 1e-6).
+fn chandrasekhar_h1(a: f64) -> f64 {
+    let n = 200;
+    let mu: Vec<f64> = (0..n).map(|k| (k as f64 + 0.5) / n as f64).collect();
+    let integral =
+        |h: &[f64], m: f64| h.iter().zip(&mu).map(|(h, mj)| h / (m + mj)).sum::<f64>() / n as f64;
+    let mut h = vec![1.0; n];
+    for _ in 0..1000 {
+        let next: Vec<f64> = mu
+            .iter()
+            .map(|&m| 1.0 / (1.0 - 0.5 * a * m * integral(&h, m)))
+            .collect();
+        let change = next
+            .iter()
+            .zip(&h)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        h = next;
+        if change < 1e-12 {
+            break;
+        }
+    }
+    1.0 / (1.0 - 0.5 * a * integral(&h, 1.0))
+}
+
+#[test]
+fn index_matched_half_space_reflects_chandrasekhars_exact_share() {
+    // Without a boundary (eta = 1) a normal beam on an isotropically
+    // scattering half-space comes back with R = 1 - H(1) sqrt(1 - a),
+    // exactly (Chandrasekhar 1960): 0.1152, 0.4149, 0.7527 at a = 0.5, 0.9,
+    // 0.99. The transport itself, with no diffusion approximation in the check.
+    for a in [0.5, 0.9, 0.99] {
+        let (r, s) = diffuse_reflectance_at(a, 1.0, 80_000, 9);
+        let exact = 1.0 - chandrasekhar_h1(a) * (1.0 - a).sqrt();
+        eprintln!("a = {a}: MC R = {r:.4} +- {s:.4}, exact {exact:.4}");
+        assert!(
+            (r - exact).abs() < 4.0 * s,
+            "a {a}: MC {r} +- {s} vs exact {exact}"
+        );
     }
 }
 
