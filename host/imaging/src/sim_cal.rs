@@ -297,8 +297,8 @@ impl SimCalibrator {
     /// How the colour-pattern frame is simulated: at most 2x binned (at 8x a
     /// patch's central half is 4 x 4 pixels, and the patch edges blur into
     /// it) and with at least `COLOUR_PHOTONS` per channel. Colour gains are
-    /// ratios of linear values, so they hold at any binning (seed 2, ci: the
-    /// worst camera from 4.2 to 1.2 %).
+    /// ratios of linear values, so they hold at any binning (ci, seeds 1-4:
+    /// the worst camera 2.0, 4.2, 1.9, 3.4 % -> 0.6, 2.0, 1.9, 2.6 %).
     fn colour_quality(&self) -> SimQuality {
         let mut q = self.quality;
         q.downscale = q.downscale.min(2);
