@@ -305,6 +305,41 @@ mod tests {
         assert!(worst < 0.05, "misalignment {worst} texel");
     }
 
+    /// A line one pixel wide (a stripe's core) seen from straight above, with
+    /// texels 2.5 pixels wide: texel-centre samples would catch its peak or
+    /// miss it depending on where it falls; area means keep its flux
+    /// wherever it falls.
+    #[test]
+    fn texels_keep_the_flux_of_a_line_one_pixel_wide() {
+        let intr = Intrinsics {
+            fx: 4000.0,
+            fy: 4000.0,
+            cx: 512.0,
+            cy: 384.0,
+            k1: 0.0,
+            k2: 0.0,
+        };
+        // 0.1 mm per pixel on the plane 400 mm below.
+        let cam = CameraModel::look_at(DVec3::new(0.0, 0.0, 400.0), DVec3::ZERO, DVec3::X, intr);
+        let grid = Grid::centred(64, 0.25);
+        let window_mm = 64.0 * 0.25;
+        for column in 500..510 {
+            let mut img = ImageF::zeros(1024, 768, 1);
+            for y in 0..768 {
+                img.set(column, y, 0, 1.0);
+            }
+            // Radiance 1 over one 0.1 mm pixel column, across the whole window.
+            let want = 0.1 * window_mm;
+            let rect = rectify(&img, &cam, DVec3::Z, 0.0, &grid, &[1.0]);
+            let got: f64 =
+                rect.data.iter().map(|&v| v as f64).sum::<f64>() * grid.texel_mm * grid.texel_mm;
+            assert!(
+                (got / want - 1.0).abs() < 0.02,
+                "column {column}: flux {got} vs {want}"
+            );
+        }
+    }
+
     #[test]
     fn stripe_line_and_interval() {
         let grid = Grid::centred(40, 0.5);
