@@ -239,7 +239,7 @@ mod tests {
             irradiance: Some([1.0, 0.8, 0.6]),
         });
         c.laser = Some(LaserCal {
-            plane_angles: vec![[1.5707, 1.5702]],
+            plane_angles: vec![[1.2, 1.1985]],
             flux_per_mm: Some([1e-4, 2e-4, 3e-4]),
         });
         c.save(&p).unwrap();
