@@ -74,25 +74,9 @@ impl ImageF {
     pub fn set(&mut self, x: usize, y: usize, c: usize, v: f32) {
         self.data[(y * self.width + x) * self.channels + c] = v;
     }
-    /// Bilinear lookup of channel `c` at pixel coordinates (x, y), pixel centres on
-    /// integers. Outside the image, or touching a NaN, gives NaN.
-    pub fn bilinear(&self, x: f64, y: f64, c: usize) -> f32 {
-        if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as f64 && y <= (self.height - 1) as f64)
-        {
-            return f32::NAN;
-        }
-        let x0 = (x.floor() as usize).min(self.width.saturating_sub(2));
-        let y0 = (y.floor() as usize).min(self.height.saturating_sub(2));
-        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
-        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-        let v00 = self.get(x0, y0, c);
-        let v10 = self.get(x1, y0, c);
-        let v01 = self.get(x0, y1, c);
-        let v11 = self.get(x1, y1, c);
-        (v00 * (1.0 - fx) + v10 * fx) * (1.0 - fy) + (v01 * (1.0 - fx) + v11 * fx) * fy
-    }
-    /// Adds `weight` times the bilinear lookup at (x, y) to `out`, every
-    /// channel at once (the weights computed once); NaN outside the image.
+    /// Adds `weight` times the bilinear lookup at pixel coordinates (x, y)
+    /// (pixel centres on integers) to `out`, every channel at once. Outside
+    /// the image `out` becomes NaN, and a NaN pixel makes its channel NaN.
     pub fn bilinear_add(&self, x: f64, y: f64, weight: f32, out: &mut [f32]) {
         if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as f64 && y <= (self.height - 1) as f64)
         {
@@ -144,10 +128,15 @@ mod tests {
         let mut im = ImageF::zeros(3, 2, 1);
         im.set(1, 0, 0, 2.0);
         im.set(1, 1, 0, 4.0);
-        assert!((im.bilinear(0.5, 0.5, 0) - 1.5).abs() < 1e-6);
-        assert!((im.bilinear(2.0, 1.0, 0) - 0.0).abs() < 1e-6);
-        assert!(im.bilinear(-0.1, 0.0, 0).is_nan());
-        assert!(im.bilinear(0.0, 1.01, 0).is_nan());
+        let at = |x: f64, y: f64| {
+            let mut v = [0.0f32];
+            im.bilinear_add(x, y, 1.0, &mut v);
+            v[0]
+        };
+        assert!((at(0.5, 0.5) - 1.5).abs() < 1e-6);
+        assert!((at(2.0, 1.0) - 0.0).abs() < 1e-6);
+        assert!(at(-0.1, 0.0).is_nan());
+        assert!(at(0.0, 1.01).is_nan());
     }
 
     #[test]

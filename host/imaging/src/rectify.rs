@@ -5,11 +5,11 @@
 //! For a point p of the sample frame, the world point is R_axis(theta) p; the
 //! calibrated camera projects it (with distortion) to a pixel, and the image is
 //! sampled bilinearly there. A texel is the mean of such samples over its
-//! area, at most half a pixel apart: sums over texels then keep the
-//! flux of features a pixel wide (a stripe's core), which a texel-centre
-//! sample alone aliases by several per cent at CI scale. Stripes: texels brighter than a threshold give a
-//! line by weighted total least squares; texels are kept within a distance
-//! interval from that line, with their distances.
+//! area, at most half a pixel apart: sums over texels then keep the flux of
+//! features a pixel wide (a stripe's core), which a texel-centre sample
+//! alone aliases by several per cent at CI scale. Stripes: texels brighter
+//! than a threshold give a line by weighted total least squares; texels are
+//! kept within a distance interval from that line, with their distances.
 
 use glam::{DMat3, DVec2, DVec3};
 use rayon::prelude::*;
