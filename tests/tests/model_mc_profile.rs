@@ -1,6 +1,8 @@
 //! Issue 5 accuracy on the simulated world: fit a Monte Carlo laser-stripe
 //! profile of a homogeneous slab (sim-light, no diffusion inside) with the
-//! dipole profile fit, and compare a' and s'_t with the slab's truth.
+//! profile fit (radiative transfer solved in the half-space, qhm_model::
+//! transport), and compare a' and s'_t with the slab's truth; and compare
+//! the two independent solutions of the same transport problem directly.
 //!
 //! I(d) is the exit-position histogram of a vertical stripe across a central
 //! band, per incident photon per mm of stripe and per mm² of surface; R is the
@@ -9,7 +11,9 @@
 //! divides both by T(0), the share that enters.
 
 use glam::Vec3;
-use qhm_model::profile::{Norm, Profile, fit_profile};
+use qhm_model::dipole::normal_transmittance;
+use qhm_model::profile::{Norm, Profile, ProfileModel, fit_profile};
+use qhm_model::transport::HalfSpace;
 use sim_light::*;
 
 /// (I(d) profile, R) of a large homogeneous slab (300 x 300 x 150 mm,
@@ -82,7 +86,14 @@ fn errors(
     let st = sigma_s + sigma_a;
     let a = sigma_s / st;
     let (profile, r) = mc_profile(sigma_s, sigma_a, eta, roughness, photons, 7);
-    let fit = fit_profile(&profile, r, eta, None, Norm::Poisson)?;
+    let fit = fit_profile(
+        &profile,
+        r,
+        eta,
+        ProfileModel::Transport,
+        None,
+        Norm::Poisson,
+    )?;
     eprintln!(
         "s'_s {sigma_s} s_a {sigma_a} eta {eta}: R {r:.4}; a' {:.5} (true {a:.5}), s'_t {:.4} (true {st:.4}), range {:?}, residual {:.3e}",
         fit.alpha_prime, fit.sigma_t_prime, fit.range_mm, fit.residual
@@ -108,15 +119,13 @@ fn mc_stripe_profile_of_a_more_absorbing_slab_fits_the_truth() {
     check(2.0, 0.1, 400_000);
 }
 
-/// Every channel of the homogeneous presets, each with its own eta and
-/// polished (GGX 0.02) top, the stripe's light per incident flux as a
-/// capture measures it. In the dipole's regime (a' >= 0.95) a' is within
-/// issue 5's 0.002 (measured: <= 0.0009). s'_t is within 5 % for marble
-/// (+1.8, +1.8, -0.5 %), skim milk and skin2, but the classical dipole's
-/// profile is steeper than transport's at eta 1.3 and s'_t comes out
-/// +5..+7 % for whole milk, cream and potato (red) on any distance range
-/// (docs/model-format.md), so the bound here is 8 %. Lower albedos (skin1
-/// green and blue, potato blue, ketchup) are outside diffusion: printed only.
+/// Every channel of the homogeneous presets, each with its own eta, under
+/// a smooth top (the boundary the transport model describes), the stripe's
+/// light per incident flux as a capture measures it: a' within 0.002 and
+/// s'_t within 5 % (issue 5's targets; measured: <= 0.0008 and 2.2 %),
+/// at every albedo. Only ketchup's green and blue (a' 0.07 and 0.02), whose
+/// light leaves within a millimetre of the stripe, have no distance range
+/// to fit, and must say so.
 #[test]
 fn mc_stripe_profiles_of_the_homogeneous_presets_fit_the_truth() {
     let mut failures = Vec::new();
@@ -135,23 +144,68 @@ fn mc_stripe_profiles_of_the_homogeneous_presets_fit_the_truth() {
         for c in 0..3 {
             let (ss, sa) = (k.sigma_s[c], k.sigma_a[c]);
             let a = ss / (ss + sa);
-            match errors(ss, sa, eta, POLISHED_ROUGHNESS, 200_000) {
+            match errors(ss, sa, eta, 0.0, 200_000) {
                 Ok((da, ds)) => {
                     eprintln!(
                         "{name} channel {c}: a' {a:.4} off by {da:+.4}, s'_t off by {:+.1} %",
                         ds * 100.0
                     );
-                    if a >= 0.95 && (da.abs() >= 0.002 || ds.abs() >= 0.08) {
+                    if da.abs() >= 0.002 || ds.abs() >= 0.05 {
                         failures.push(format!(
                             "{name} channel {c}: a' {da:+.4}, s'_t {:+.1} %",
                             ds * 100.0
                         ));
                     }
                 }
-                Err(e) if a < 0.95 => eprintln!("{name} channel {c}: a' {a:.4}: {e}"),
+                Err(e) if a < 0.1 && e.to_string().contains("no usable distance range") => {
+                    eprintln!("{name} channel {c}: a' {a:.4}: {e}")
+                }
                 Err(e) => failures.push(format!("{name} channel {c}: {e}")),
             }
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The same transport problem solved twice, independently: Monte Carlo
+/// random walks (sim-light) and the Fourier-domain integral equation of
+/// qhm_model::transport. R agrees within 0.5 % (measured: 0.01 %) and the
+/// stripe's profile, in 1 mm bands from 0.5 to 6.5 mm while above a
+/// twentieth of the first, within 3 % (Monte Carlo noise there: 1-2 %);
+/// the classic dipole is 5-12 % off over the same bands.
+#[test]
+fn monte_carlo_and_transport_solution_agree() {
+    for (name, c) in [("whole-milk", 0), ("marble", 0), ("skin2", 2)] {
+        let (k, eta) = material_preset(name).unwrap();
+        let (ss, sa) = (k.sigma_s[c], k.sigma_a[c]);
+        let (st, a) = (ss + sa, ss / (ss + sa));
+        let (profile, r) = mc_profile(ss, sa, eta, 0.0, 2_000_000, 11);
+        let half_space = HalfSpace::shared(eta);
+        let t_in = normal_transmittance(eta);
+        let r_exact = t_in * half_space.total_reflectance(a);
+        eprintln!("{name}: R Monte Carlo {r:.5}, transport {r_exact:.5}");
+        assert!(
+            (r / r_exact - 1.0).abs() < 0.005,
+            "{name}: R {r} vs {r_exact}"
+        );
+        let xs: Vec<f64> = profile.distance_mm.iter().map(|d| d * st).collect();
+        let g = half_space.line_profile(a, &xs);
+        let mut first = None;
+        for band in 0..6 {
+            let (lo, hi) = (0.5 + band as f64, 1.5 + band as f64);
+            let (mut mc, mut exact) = (0.0, 0.0);
+            for (k, &d) in profile.distance_mm.iter().enumerate() {
+                if d >= lo && d < hi {
+                    mc += profile.intensity[k];
+                    exact += t_in * st * g[k];
+                }
+            }
+            if exact < 0.05 * *first.get_or_insert(exact) {
+                break;
+            }
+            let ratio = mc / exact;
+            eprintln!("{name} {lo:.1}-{hi:.1} mm: Monte Carlo / transport {ratio:.4}");
+            assert!((ratio - 1.0).abs() < 0.03, "{name} {lo}-{hi} mm: {ratio}");
+        }
+    }
 }

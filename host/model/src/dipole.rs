@@ -264,11 +264,13 @@ impl Dipole {
     }
 }
 
-/// I_D(d) for one a' and every s'_t at once, from the dipole's scaling law:
+/// I_D(d) for one a' and every s'_t at once, from the scaling law that the
+/// dipole and radiative transfer share (lengths scale with 1/s'_t):
 /// R_d(r; a', s'_t) = s'_t² R_d(s'_t r; a', 1), hence
 /// I_D(d; a', s'_t) = s'_t g(s'_t d) with g(x) = I_D(x; a', 1). g is computed
-/// once by quadrature on a grid in u = ln(1 + x) and interpolated linearly in
-/// (u, ln g), which makes each candidate of the s'_t search a table lookup.
+/// once on a grid in u = ln(1 + x) (by quadrature for the dipole, by
+/// [`crate::transport`] otherwise) and interpolated linearly in (u, ln g),
+/// which makes each candidate of the s'_t search a table lookup.
 #[derive(Clone, Debug)]
 pub struct ScaledStripe {
     pub alpha_prime: f64,
@@ -278,15 +280,29 @@ pub struct ScaledStripe {
 }
 
 impl ScaledStripe {
-    /// Table good for s'_t d <= `x_max`.
+    /// The dipole's table, good for s'_t d <= `x_max`.
     pub fn new(alpha_prime: f64, eta: f64, x_max: f64) -> Self {
         use rayon::prelude::*;
+        let unit = Dipole::new(alpha_prime, 1.0, eta);
+        Self::from_unit_profile(alpha_prime, eta, x_max, |xs| {
+            xs.par_iter().map(|&x| unit.stripe(x)).collect()
+        })
+    }
+
+    /// The table from any profile g(x) of unit s'_t obeying the same
+    /// scaling law, evaluated at once on the grid by `unit_profile`.
+    pub fn from_unit_profile(
+        alpha_prime: f64,
+        eta: f64,
+        x_max: f64,
+        unit_profile: impl FnOnce(&[f64]) -> Vec<f64>,
+    ) -> Self {
         let h = 0.002;
         let n = ((1.0 + x_max.max(1.0)).ln() / h).ceil() as usize + 2;
-        let unit = Dipole::new(alpha_prime, 1.0, eta);
-        let ln_g = (0..n)
-            .into_par_iter()
-            .map(|k| unit.stripe((k as f64 * h).exp() - 1.0).ln().max(-700.0))
+        let xs: Vec<f64> = (0..n).map(|k| (k as f64 * h).exp() - 1.0).collect();
+        let ln_g = unit_profile(&xs)
+            .into_iter()
+            .map(|g| if g > 0.0 { g.ln().max(-700.0) } else { -700.0 })
             .collect();
         ScaledStripe {
             alpha_prime,

@@ -25,12 +25,12 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::ModelError;
-use crate::dipole::{self, Dipole, DipoleParams};
+use crate::dipole::{self, DipoleParams, ScaledStripe};
 use crate::model::{
     EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
     Texture,
 };
-use crate::profile::{ChannelFit, Norm, Profile, fit_profile};
+use crate::profile::{ChannelFit, Norm, Profile, ProfileModel, fit_profile};
 use crate::rectified::{Rectified, StripeEntry};
 
 /// Options of [`fit_capture`].
@@ -41,6 +41,8 @@ pub struct FitOptions {
     pub range: Option<(f64, f64)>,
     /// Misfit of the s'_t search.
     pub norm: Norm,
+    /// Light transport of the stripe profile and R_total(a').
+    pub model: ProfileModel,
     /// Entrance table resolution.
     pub n_theta: usize,
     pub n_phi: usize,
@@ -54,6 +56,7 @@ impl Default for FitOptions {
             eta: dipole::DEFAULT_ETA,
             range: None,
             norm: Norm::default(),
+            model: ProfileModel::default(),
             n_theta: 10,
             n_phi: 24,
             bin_mm: None,
@@ -107,55 +110,36 @@ fn f32v(v: [f64; 3]) -> [f32; 3] {
     v.map(|x| x as f32)
 }
 
-/// A channel's tabulated I_D(d), linear between 0.002 mm steps (exact
-/// quadrature per texel would dominate the fit's run time).
-struct StripeTable {
-    step: f64,
-    values: Vec<f64>,
-}
-
-impl StripeTable {
-    fn new(dp: &Dipole, d_max: f64) -> Self {
-        let step = 0.002;
-        let n = (d_max / step).ceil() as usize + 2;
-        StripeTable {
-            step,
-            values: (0..n)
-                .into_par_iter()
-                .map(|k| dp.stripe(k as f64 * step))
-                .collect(),
-        }
-    }
-    fn eval(&self, d: f64) -> f64 {
-        let x = d / self.step;
-        let k = x.floor() as usize;
-        if k + 1 >= self.values.len() {
-            return *self.values.last().expect("non-empty table");
-        }
-        let f = x - k as f64;
-        self.values[k] * (1.0 - f) + self.values[k + 1] * f
-    }
-}
-
-/// The dipole as the capture sees it: per incident flux of a normal stripe,
-/// T(0) times Jensen's per-entered R_d (see [`crate::profile`]).
-struct EnteringDipole {
-    dipole: Dipole,
+/// A channel's I_D(d) as the capture sees it: per incident flux of a
+/// normal stripe, T(0) times the per-entered profile of the fit's model
+/// (see [`crate::profile`]), tabulated out to `d_max`.
+struct EnteringStripe {
+    table: ScaledStripe,
+    sigma_t_prime: f64,
+    total: f64,
     t_in: f64,
 }
 
-impl EnteringDipole {
-    fn new(alpha_prime: f64, sigma_t_prime: f64, eta: f64) -> Self {
-        EnteringDipole {
-            dipole: Dipole::new(alpha_prime, sigma_t_prime, eta),
+impl EnteringStripe {
+    fn new(
+        model: ProfileModel,
+        alpha_prime: f64,
+        sigma_t_prime: f64,
+        eta: f64,
+        d_max: f64,
+    ) -> Self {
+        EnteringStripe {
+            table: model.stripe_table(alpha_prime, eta, sigma_t_prime * d_max),
+            sigma_t_prime,
+            total: model.total_reflectance(alpha_prime, eta),
             t_in: dipole::normal_transmittance(eta),
         }
     }
     fn stripe(&self, d: f64) -> f64 {
-        self.t_in * self.dipole.stripe(d)
+        self.t_in * self.table.eval(d, self.sigma_t_prime)
     }
     fn total(&self) -> f64 {
-        self.t_in * self.dipole.total()
+        self.t_in * self.total
     }
 }
 
@@ -217,7 +201,7 @@ impl DistanceBins {
 /// The sample's edges and depth shape that far tail, and the dipole's
 /// semi-infinite tail would overstate it (and feed back through a' into a
 /// still longer tail).
-fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&EnteringDipole>) -> f64 {
+fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&EnteringStripe>) -> f64 {
     let centre = |k: usize| (k as f64 + 0.5) * bin;
     let measured: Vec<usize> = (0..means.len()).filter(|&k| means[k].is_some()).collect();
     let (Some(&first), Some(&last)) = (measured.first(), measured.last()) else {
@@ -278,6 +262,7 @@ pub fn fit_capture(
     // 1-3: the global dipole per channel from the vertical stripes.
     let t0 = Instant::now();
     let mut channels = Vec::new();
+    let mut stripes: [Option<EnteringStripe>; 3] = [None, None, None];
     let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
     for c in 0..3u8 {
         let entries: Vec<&StripeEntry> = data
@@ -352,7 +337,7 @@ pub fn fit_capture(
         let mut range = opts.range;
         for _ in 0..6 {
             let r_used = r.min(1.0);
-            let f = fit_profile(&profile, r_used, opts.eta, range, opts.norm)
+            let f = fit_profile(&profile, r_used, opts.eta, opts.model, range, opts.norm)
                 .map_err(|e| ModelError::Fit(format!("channel {c}: {e}")))?;
             range = Some((f.range_mm[0], f.range_mm[1]));
             let auto = fit
@@ -364,9 +349,16 @@ pub fn fit_capture(
                 auto_range: auto,
                 ..f
             };
-            let dp = EnteringDipole::new(f.alpha_prime, f.sigma_t_prime, opts.eta);
+            let dp = EnteringStripe::new(
+                opts.model,
+                f.alpha_prime,
+                f.sigma_t_prime,
+                opts.eta,
+                diag_max,
+            );
             fit = Some((r_used, f));
             let next = reflectance_from_profile(&means, grid.texel_mm, Some(&dp));
+            stripes[c as usize] = Some(dp);
             if (next - r).abs() < 1e-9 * r {
                 break;
             }
@@ -392,9 +384,7 @@ pub fn fit_capture(
     };
     // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
     let t_in = dipole::normal_transmittance(opts.eta);
-    let tables: Vec<StripeTable> = (0..3)
-        .map(|c| StripeTable::new(&dipole.channel(c), diag_max))
-        .collect();
+    let tables = stripes.map(|s| s.expect("every channel was fitted"));
     timings.dipole = t0.elapsed().as_secs_f64();
 
     // 4: the entrance function.
@@ -431,7 +421,7 @@ pub fn fit_capture(
                         // Only where the dipole was fitted: the near field is not diffusion.
                         if l.is_finite() && d >= lo && d <= hi {
                             num[j * w + i][c] += l;
-                            den[j * w + i][c] += tables[c].eval(d) * t_in * s.flux_per_mm / PI;
+                            den[j * w + i][c] += tables[c].stripe(d) * s.flux_per_mm / PI;
                         }
                     }
                 }
@@ -794,19 +784,25 @@ mod tests {
     }
 
     #[test]
-    fn reflectance_fills_the_near_field_from_the_dipole() {
-        // The dipole's own profile, the first 0.5 mm masked and measured to 40 mm.
-        let dp = EnteringDipole::new(0.99, 2.0, 1.3);
-        let bin = 0.02;
-        let means: Vec<Option<f64>> = (0..2000)
-            .map(|k| {
-                let d = (k as f64 + 0.5) * bin;
-                (d > 0.5).then(|| dp.stripe(d))
-            })
-            .collect();
-        let r = reflectance_from_profile(&means, bin, Some(&dp));
-        assert!((r / dp.total() - 1.0).abs() < 0.01, "{r} vs {}", dp.total());
-        // Without the dipole the near field is simply missing.
-        assert!(reflectance_from_profile(&means, bin, None) < 0.95 * r);
+    fn reflectance_fills_the_near_field_from_the_model() {
+        for model in [ProfileModel::Transport, ProfileModel::Dipole] {
+            // The model's own profile, the first 0.5 mm masked and measured to 40 mm.
+            let dp = EnteringStripe::new(model, 0.99, 2.0, 1.3, 40.0);
+            let bin = 0.02;
+            let means: Vec<Option<f64>> = (0..2000)
+                .map(|k| {
+                    let d = (k as f64 + 0.5) * bin;
+                    (d > 0.5).then(|| dp.stripe(d))
+                })
+                .collect();
+            let r = reflectance_from_profile(&means, bin, Some(&dp));
+            assert!(
+                (r / dp.total() - 1.0).abs() < 0.01,
+                "{model:?}: {r} vs {}",
+                dp.total()
+            );
+            // Without the model the near field is simply missing.
+            assert!(reflectance_from_profile(&means, bin, None) < 0.95 * r);
+        }
     }
 }

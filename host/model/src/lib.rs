@@ -2,6 +2,7 @@
 //! everything that produces or reads it:
 //!
 //! - [`dipole`]: R_d(r), R_total(a') and its inversion, the virtual stripe I_D(d);
+//! - [`transport`]: the same for radiative transfer, solved without diffusion;
 //! - [`profile`]: the s'_t fit of a laser-stripe profile I(d) (paper eq. 6);
 //! - [`model`]: [`MaterialModel`] = dipole + entrance f(w_i) + exiting f_v(x, w_o) + LRF;
 //! - [`format`]: the versioned on-disk directory (docs/model-format.md);
@@ -11,6 +12,7 @@
 pub mod dipole;
 mod error;
 pub mod quad;
+pub mod transport;
 
 pub use dipole::{Dipole, DipoleParams};
 pub use error::ModelError;

@@ -247,7 +247,12 @@ mod tests {
         let spec = SynthSpec::small(truth);
         let dir = tempfile::tempdir().unwrap();
         write_synthetic(dir.path(), &spec).unwrap();
-        let (model, _) = fit_capture(dir.path(), &FitOptions::default()).unwrap();
+        // The synthetic capture is the dipole's world, so it is fitted with it.
+        let opts = FitOptions {
+            model: crate::profile::ProfileModel::Dipole,
+            ..FitOptions::default()
+        };
+        let (model, _) = fit_capture(dir.path(), &opts).unwrap();
         for c in 0..3 {
             let (a, s) = (model.dipole.alpha_prime[c], model.dipole.sigma_t_prime[c]);
             assert!(

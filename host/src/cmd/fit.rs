@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use clap::Args;
 use qhm_model::dipole::DEFAULT_ETA;
-use qhm_model::profile::Norm;
+use qhm_model::profile::{Norm, ProfileModel};
 use qhm_model::{Profile, fit_profile};
 
 #[derive(Args, Debug)]
@@ -29,9 +29,29 @@ pub struct FitProfileArgs {
     /// smoothed profile), or absolute Σ(I_D - I)² (the paper's eq. 6).
     #[arg(long, value_enum, default_value_t = NormArg::Poisson)]
     pub norm: NormArg,
+    /// Light transport of I_D(d) and R_total(a'): radiative transfer solved
+    /// in the half-space, or the paper's classic dipole.
+    #[arg(long, value_enum, default_value_t = ModelArg::Transport)]
+    pub model: ModelArg,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--model` values.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum ModelArg {
+    Transport,
+    Dipole,
+}
+
+impl From<ModelArg> for ProfileModel {
+    fn from(m: ModelArg) -> ProfileModel {
+        match m {
+            ModelArg::Transport => ProfileModel::Transport,
+            ModelArg::Dipole => ProfileModel::Dipole,
+        }
+    }
 }
 
 /// `--norm` values.
@@ -74,6 +94,7 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
         &profile,
         args.reflectance,
         args.eta,
+        args.model.into(),
         args.range,
         args.norm.into(),
     )
@@ -87,6 +108,7 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
             "residual": fit.residual,
             "range_mm": fit.range_mm,
             "auto_range": fit.auto_range,
+            "model": fit.model.name(),
         });
         println!("{v}");
     } else {
@@ -95,6 +117,7 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
             "range         {:.4}:{:.4} mm ({how}, {} points)",
             fit.range_mm[0], fit.range_mm[1], fit.points
         );
+        println!("model         {}", fit.model.name());
         println!("alpha_prime   {:.6}", fit.alpha_prime);
         println!("sigma_t_prime {:.6} mm^-1", fit.sigma_t_prime);
         println!("sigma_s_prime {:.6} mm^-1", fit.sigma_s_prime);
@@ -103,7 +126,8 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
     }
     if fit.sigma_t_prime >= qhm_model::dipole::SIGMA_T_PRIME_MAX * 0.999 {
         bail!(
-            "s'_t hit the end of the search interval (10 mm^-1): the profile does not fit a dipole in range"
+            "s'_t hit the end of the search interval (10 mm^-1): the profile does not fit the {} model in range",
+            fit.model.name()
         );
     }
     Ok(ExitCode::SUCCESS)
@@ -125,6 +149,9 @@ pub struct FitArgs {
     /// Misfit of the s'_t search (see `qhm fit-profile --help`).
     #[arg(long, value_enum, default_value_t = NormArg::Poisson)]
     pub norm: NormArg,
+    /// Light transport of the profile fit (see `qhm fit-profile --help`).
+    #[arg(long, value_enum, default_value_t = ModelArg::Transport)]
+    pub model: ModelArg,
     /// Compress the LRF to this many PCA components (default: uncompressed).
     #[arg(long)]
     pub lrf_components: Option<usize>,
@@ -135,6 +162,7 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
         eta: args.eta,
         range: args.range,
         norm: args.norm.into(),
+        model: args.model.into(),
         ..Default::default()
     };
     let t = std::time::Instant::now();

@@ -1,0 +1,670 @@
+//! Radiative transfer, solved without diffusion, for the case the fit
+//! models: a homogeneous half-space of reduced albedo a' with isotropic
+//! scattering under a smooth boundary of relative index eta, lit by a normal
+//! line beam. Lengths are in mean free paths (s'_t = 1); everything scales
+//! as the dipole does, I(d; s'_t) = s'_t g(s'_t d).
+//!
+//! Method: Fourier transform across the stripe (frequency k), which leaves
+//! a one-dimensional integral equation in depth for the scattering source
+//! C(z) = a' φ(z):
+//!
+//!   C(z) = a' e^{-z} + a' ∫ [K(k, |z - z'|) + K_F(k, z + z')] C(z') dz',
+//!   K(k, t)   = ½ ∫_0^1 e^{-t/μ} J0(k t s/μ) dμ/μ,       s = sqrt(1 - μ²),
+//!   K_F(k, t) = ½ ∫_0^1 F(μ) e^{-t/μ} J0(k t s/μ) dμ/μ    (internal Fresnel
+//!                                                        reflection: an image),
+//!   M̂(k) = ∫ C(z) T(k, z) dz,  T(k, z) = ½ ∫_0^1 (1 - F(μ)) e^{-z/μ} J0(k z s/μ) dμ.
+//!
+//! C is piecewise constant on depth cells, collocated at their midpoints,
+//! with the kernels integrated exactly over each cell through tabulated
+//! primitives. Single scattering is taken out and integrated in real space
+//! (its transform decays slowly); the rest is transformed back by a Filon
+//! rule. At k = 0 the same system gives the exact total reflectance.
+
+use std::f64::consts::PI;
+
+use std::sync::{Arc, Mutex, OnceLock};
+
+use rayon::prelude::*;
+
+use crate::ModelError;
+use crate::dipole::fresnel_dielectric;
+use crate::quad;
+
+/// Bessel J0 (Abramowitz & Stegun 9.4.1 and 9.4.3, |error| < 5e-8).
+pub fn bessel_j0(x: f64) -> f64 {
+    let x = x.abs();
+    if x <= 3.0 {
+        let y = (x / 3.0).powi(2);
+        1.0 + y
+            * (-2.249_999_7
+                + y * (1.265_620_8
+                    + y * (-0.316_386_6
+                        + y * (0.044_447_9 + y * (-0.003_944_4 + y * 0.000_210_0)))))
+    } else {
+        let y = 3.0 / x;
+        let f0 = 0.797_884_56
+            + y * (-0.000_000_77
+                + y * (-0.005_527_40
+                    + y * (-0.000_095_12
+                        + y * (0.001_372_37 + y * (-0.000_728_05 + y * 0.000_144_76)))));
+        let theta = x - std::f64::consts::FRAC_PI_4
+            + y * (-0.041_663_97
+                + y * (-0.000_039_54
+                    + y * (0.002_625_73
+                        + y * (-0.000_541_25 + y * (-0.000_293_33 + y * 0.000_135_58)))));
+        f0 * theta.cos() / x.sqrt()
+    }
+}
+
+/// 4-point Gauss-Legendre on [-1, 1].
+const GL4: [(f64, f64); 4] = [
+    (-0.861_136_311_594_052_6, 0.347_854_845_137_453_9),
+    (-0.339_981_043_584_856_3, 0.652_145_154_862_546_1),
+    (0.339_981_043_584_856_3, 0.652_145_154_862_546_1),
+    (0.861_136_311_594_052_6, 0.347_854_845_137_453_9),
+];
+
+/// Direction cosines μ in (0, 1) with weights and the internal Fresnel
+/// reflectance F(μ): composite Gauss-Legendre, panels refined towards
+/// grazing (where e^{-t/μ} is steep) and split at the critical angle.
+struct Angles {
+    mu: Vec<f64>,
+    weight: Vec<f64>,
+    fresnel: Vec<f64>,
+}
+
+impl Angles {
+    fn new(eta: f64) -> Self {
+        let mut cuts = vec![
+            0.0, 1e-5, 1e-4, 1e-3, 3e-3, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2,
+        ];
+        cuts.extend((3..=10).map(|k| k as f64 / 10.0));
+        let mu_c = (1.0 - 1.0 / (eta * eta)).max(0.0).sqrt();
+        cuts.push(mu_c);
+        cuts.sort_by(f64::total_cmp);
+        cuts.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+        let (mut mu, mut weight, mut fresnel) = (vec![], vec![], vec![]);
+        for w in cuts.windows(2) {
+            // Two 4-point panels per interval.
+            let h = 0.25 * (w[1] - w[0]);
+            for c in [w[0] + h, w[1] - h] {
+                for &(x, wt) in &GL4 {
+                    let m = c + h * x;
+                    mu.push(m);
+                    weight.push(h * wt);
+                    fresnel.push(fresnel_dielectric(m, 1.0 / eta));
+                }
+            }
+        }
+        Angles {
+            mu,
+            weight,
+            fresnel,
+        }
+    }
+}
+
+/// Distances (in mfp) at which the kernel primitives are tabulated: 0, then
+/// geometric from 1e-6 to 4000 with ratio 1.02.
+fn primitive_grid() -> Vec<f64> {
+    let mut d = vec![0.0];
+    let mut x = 1e-6;
+    while x < 4000.0 {
+        d.push(x);
+        x *= 1.02;
+    }
+    d.push(x);
+    d
+}
+
+/// Primitives of the three kernels at one k, on `primitive_grid()`:
+/// P(t) = ∫_0^t K, P_F(t) = ∫_0^t K_F, P_T(t) = ∫_0^t T.
+struct Primitives {
+    grid: Vec<f64>,
+    p: Vec<f64>,
+    p_f: Vec<f64>,
+    p_t: Vec<f64>,
+}
+
+/// G(c, X) = ∫_0^X e^{-u} J0(c u) du at the sorted `xs`, cumulatively.
+fn damped_j0_primitive(c: f64, xs: impl Iterator<Item = f64>, out: &mut Vec<f64>) {
+    let saturated = 1.0 / (1.0 + c * c).sqrt();
+    let (mut x_prev, mut acc) = (0.0f64, 0.0f64);
+    for x in xs {
+        if x_prev >= 60.0 {
+            out.push(saturated);
+            continue;
+        }
+        let x_to = x.min(60.0);
+        let len = x_to - x_prev;
+        if len > 0.0 {
+            let n = ((len * (1.0 + c)).ceil() as usize).clamp(1, 100_000);
+            let h = len / n as f64;
+            for j in 0..n {
+                let mid = x_prev + (j as f64 + 0.5) * h;
+                for &(t, w) in &GL4 {
+                    let u = mid + 0.5 * h * t;
+                    acc += 0.5 * h * w * (-u).exp() * bessel_j0(c * u);
+                }
+            }
+        }
+        x_prev = x_to;
+        out.push(if x >= 60.0 { saturated } else { acc });
+    }
+}
+
+impl Primitives {
+    fn new(k: f64, angles: &Angles, grid: &[f64]) -> Self {
+        let n = grid.len();
+        let (mut p, mut p_f, mut p_t) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut g = Vec::with_capacity(n);
+        for q in 0..angles.mu.len() {
+            let (mu, w, f) = (angles.mu[q], angles.weight[q], angles.fresnel[q]);
+            let c = k * (1.0 - mu * mu).sqrt();
+            g.clear();
+            damped_j0_primitive(c, grid.iter().map(|&t| t / mu), &mut g);
+            for m in 0..n {
+                p[m] += 0.5 * w * g[m];
+                p_f[m] += 0.5 * w * f * g[m];
+                p_t[m] += 0.5 * w * (1.0 - f) * mu * g[m];
+            }
+        }
+        Primitives {
+            grid: grid.to_vec(),
+            p,
+            p_f,
+            p_t,
+        }
+    }
+
+    /// Linear interpolation of a table at t >= 0.
+    fn at(&self, table: &[f64], t: f64) -> f64 {
+        let g = &self.grid;
+        if t <= 0.0 {
+            return 0.0;
+        }
+        if t >= g[g.len() - 1] {
+            return table[g.len() - 1];
+        }
+        // Geometric grid: index from the logarithm, then fix up.
+        let mut i = if t < 1e-6 {
+            0
+        } else {
+            (((t / 1e-6).ln() / 1.02f64.ln()) as usize + 1).min(g.len() - 2)
+        };
+        while i > 0 && g[i] > t {
+            i -= 1;
+        }
+        while i + 2 < g.len() && g[i + 1] < t {
+            i += 1;
+        }
+        let f = (t - g[i]) / (g[i + 1] - g[i]);
+        table[i] * (1.0 - f) + table[i + 1] * f
+    }
+}
+
+/// Depth below which the source is the asymptotic transport mode: the
+/// boundary's transients decay as e^{-z} and are below 1e-8 there.
+const NEAR_DEPTH: f64 = 20.0;
+
+/// Cell edges of the near region [0, NEAR_DEPTH]: 1e-3 mfp at the surface,
+/// growing by 10 % per cell to 0.1 mfp (the cell width sets the error of
+/// the effective diffusion coefficient, h²/4 relative: 0.25 %).
+fn depth_cells() -> Vec<f64> {
+    let mut edges = vec![0.0];
+    let mut h = 1e-3;
+    while *edges.last().unwrap() < NEAR_DEPTH {
+        let z = edges.last().unwrap() + h;
+        edges.push(z.min(NEAR_DEPTH));
+        h = (h * 1.1).min(0.1);
+    }
+    edges
+}
+
+/// Decay rate p0 of the infinite medium's slowest mode at k = 0:
+/// a' artanh(p0)/p0 = 1 (exact transport; diffusion's sqrt(3(1-a')) to first order).
+pub fn asymptotic_decay(alpha: f64) -> f64 {
+    if alpha >= 1.0 {
+        return 0.0;
+    }
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..200 {
+        let p = 0.5 * (lo + hi);
+        let v = if p < 1e-4 {
+            1.0 + p * p / 3.0
+        } else {
+            p.atanh() / p
+        };
+        if alpha * v < 1.0 {
+            lo = p;
+        } else {
+            hi = p;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Gauss-Legendre panels for ∫_0^60 ds, finer near 0.
+fn tail_nodes() -> Vec<(f64, f64)> {
+    let cuts = [
+        0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 2.0, 4.0, 8.0, 15.0, 25.0, 40.0, 60.0,
+    ];
+    let mut nodes = vec![];
+    for w in cuts.windows(2) {
+        let (c, h) = (0.5 * (w[0] + w[1]), 0.5 * (w[1] - w[0]));
+        nodes.extend(GL4.iter().map(|&(x, wt)| (c + h * x, h * wt)));
+    }
+    nodes
+}
+
+/// Solves the depth equation at frequency k: (multiply scattered exitance
+/// M̂_ms(k), single-scattered M̂_ss(k) of the discretisation). Below
+/// NEAR_DEPTH the source is B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² + k²),
+/// with B continuous with the last cell.
+fn solve_k(alpha: f64, k: f64, prim: &Primitives) -> (f64, f64) {
+    let edges = depth_cells();
+    let n = edges.len() - 1;
+    let m = n + 1; // cells + the tail's amplitude
+    let kappa = (asymptotic_decay(alpha).powi(2) + k * k).sqrt();
+    let mid: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+    let p_inf = prim.p[prim.p.len() - 1];
+    let tail = tail_nodes();
+    let mut a = vec![0.0; m * m];
+    for i in 0..n {
+        let zi = mid[i];
+        let row = &mut a[i * m..(i + 1) * m];
+        for j in 0..n {
+            let (lo, hi) = (edges[j], edges[j + 1]);
+            let direct = if zi < lo {
+                prim.at(&prim.p, hi - zi) - prim.at(&prim.p, lo - zi)
+            } else if zi > hi {
+                prim.at(&prim.p, zi - lo) - prim.at(&prim.p, zi - hi)
+            } else {
+                prim.at(&prim.p, zi - lo) + prim.at(&prim.p, hi - zi)
+            };
+            let image = prim.at(&prim.p_f, zi + hi) - prim.at(&prim.p_f, zi + lo);
+            row[j] = -alpha * (direct + image);
+        }
+        // ∫_0^∞ K(t0 + s) e^{-κ s} ds by parts: -P(t0) + κ ∫ P(t0 + s) e^{-κ s} ds
+        // (P = P(∞) beyond s = 60). The image of the tail is below e^{-60}.
+        let t0 = NEAR_DEPTH - zi;
+        let body: f64 = tail
+            .iter()
+            .map(|&(s, w)| w * prim.at(&prim.p, t0 + s) * (-kappa * s).exp())
+            .sum();
+        row[n] = -alpha * (-prim.at(&prim.p, t0) + kappa * body + p_inf * (-kappa * 60.0).exp());
+        row[i] += 1.0;
+    }
+    // B = C(z) continued from the last cell's midpoint.
+    a[n * m + n] = 1.0;
+    a[n * m + n - 1] = -(-kappa * (NEAR_DEPTH - mid[n - 1])).exp();
+    let mut source: Vec<f64> = mid.iter().map(|&z| alpha * (-z).exp()).collect();
+    source.push(0.0);
+    let c = solve_dense(&mut a, source.clone(), m);
+    let exit: Vec<f64> = edges
+        .windows(2)
+        .map(|w| prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0]))
+        .collect();
+    let ms = (0..n).map(|j| (c[j] - source[j]) * exit[j]).sum();
+    let ss = (0..n).map(|j| source[j] * exit[j]).sum();
+    (ms, ss)
+}
+
+/// Gaussian elimination with partial pivoting (row-major `a`, n x n).
+fn solve_dense(a: &mut [f64], mut b: Vec<f64>, n: usize) -> Vec<f64> {
+    for col in 0..n {
+        let piv = (col..n)
+            .max_by(|&r, &s| a[r * n + col].abs().total_cmp(&a[s * n + col].abs()))
+            .unwrap();
+        if piv != col {
+            for k in 0..n {
+                a.swap(col * n + k, piv * n + k);
+            }
+            b.swap(col, piv);
+        }
+        let d = a[col * n + col];
+        for r in col + 1..n {
+            let f = a[r * n + col] / d;
+            if f != 0.0 {
+                for k in col..n {
+                    a[r * n + k] -= f * a[col * n + k];
+                }
+                b[r] -= f * b[col];
+            }
+        }
+    }
+    for col in (0..n).rev() {
+        let s: f64 = (col + 1..n).map(|k| a[col * n + k] * b[k]).sum();
+        b[col] = (b[col] - s) / a[col * n + col];
+    }
+    b
+}
+
+/// Kernel tables for one eta, shared by every albedo: the primitives at
+/// each spatial frequency and the single-scattering line profile of unit
+/// albedo. Building them takes about a second; [`HalfSpace::shared`] keeps
+/// one per eta for the process.
+pub struct HalfSpace {
+    pub eta: f64,
+    angles: Angles,
+    k: Vec<f64>,
+    prims: Vec<Primitives>,
+    /// M̂_ms(k) of the last few albedos (the fit asks for the same one
+    /// from its profile search and its reflectance bookkeeping).
+    recent: Mutex<Vec<(f64, Arc<Vec<f64>>)>>,
+    /// ln of single scattering of unit albedo at x = SS_NEAR e^{i·SS_STEP}
+    /// (logarithmic at the line and exponential away from it, so
+    /// tabulated in ln x and interpolated in ln g).
+    single: Vec<f64>,
+}
+
+/// Highest spatial frequency of the multiple-scattering transform, 1/mfp.
+const K_MAX: f64 = 60.0;
+
+/// Grid of the single-scattering table: from SS_NEAR mfp, steps in ln x.
+const SS_NEAR: f64 = 1e-4;
+const SS_STEP: f64 = 0.02;
+
+/// Single scattering beyond this many mfp from the line is below e^{-40}.
+const SS_REACH: f64 = 40.0;
+
+impl HalfSpace {
+    pub fn new(eta: f64) -> Self {
+        let angles = Angles::new(eta);
+        let grid = primitive_grid();
+        let mut k = vec![0.0];
+        let mut x = 1e-4;
+        while x < K_MAX {
+            k.push(x);
+            x *= 1.08;
+        }
+        k.push(K_MAX);
+        let prims: Vec<Primitives> = k
+            .par_iter()
+            .map(|&k| Primitives::new(k, &angles, &grid))
+            .collect();
+        let n = ((SS_REACH / SS_NEAR).ln() / SS_STEP).ceil() as usize + 2;
+        let single = (0..n)
+            .into_par_iter()
+            .map(|i| single_line(eta, SS_NEAR * (i as f64 * SS_STEP).exp()).ln())
+            .collect();
+        HalfSpace {
+            eta,
+            angles,
+            k,
+            prims,
+            recent: Mutex::new(Vec::new()),
+            single,
+        }
+    }
+
+    /// The tables for `eta`, built once per process.
+    pub fn shared(eta: f64) -> Arc<HalfSpace> {
+        static CACHE: OnceLock<Mutex<Vec<Arc<HalfSpace>>>> = OnceLock::new();
+        let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+        let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(hs) = cache.iter().find(|h| h.eta == eta) {
+            return hs.clone();
+        }
+        let hs = Arc::new(HalfSpace::new(eta));
+        cache.push(hs.clone());
+        hs
+    }
+
+    /// Single scattering's total exitance (exact): ½ a' ∫ (1 - F) μ/(1 + μ) dμ.
+    fn single_total(&self, alpha: f64) -> f64 {
+        let an = &self.angles;
+        (0..an.mu.len())
+            .map(|q| {
+                0.5 * alpha * an.weight[q] * (1.0 - an.fresnel[q]) * an.mu[q] / (1.0 + an.mu[q])
+            })
+            .sum()
+    }
+
+    /// Total diffuse reflectance per entered flux of reduced albedo `alpha`.
+    pub fn total_reflectance(&self, alpha: f64) -> f64 {
+        let (ms, _) = solve_k(alpha, 0.0, &self.prims[0]);
+        ms + self.single_total(alpha)
+    }
+
+    /// Inverts [`Self::total_reflectance`] (monotone in a') in s = sqrt(1 - a'),
+    /// where R is nearly linear near a' = 1, by regula falsi (Illinois),
+    /// to 1e-10 in a'. R must be in (0, 1].
+    pub fn albedo_from_reflectance(&self, r: f64) -> Result<f64, ModelError> {
+        if !(r.is_finite() && r > 0.0 && r <= 1.0) {
+            return Err(ModelError::Domain(format!(
+                "total diffuse reflectance R = {r} is outside (0, 1]"
+            )));
+        }
+        // g(s) = R(1 - s²) - r falls from g(0) >= 0 to g(1) = -r.
+        let g = |s: f64| self.total_reflectance(1.0 - s * s) - r;
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        let (mut g_lo, mut g_hi) = (g(lo), -r);
+        if g_lo <= 0.0 {
+            return Ok(1.0);
+        }
+        let mut side = 0;
+        for _ in 0..100 {
+            let s = (lo * g_hi - hi * g_lo) / (g_hi - g_lo);
+            let gs = g(s);
+            if gs > 0.0 {
+                (lo, g_lo) = (s, gs);
+                if side == 1 {
+                    g_hi *= 0.5;
+                }
+                side = 1;
+            } else {
+                (hi, g_hi) = (s, gs);
+                if side == -1 {
+                    g_lo *= 0.5;
+                }
+                side = -1;
+            }
+            if hi - lo < 1e-11 || gs == 0.0 {
+                break;
+            }
+        }
+        let s = if g_lo.abs() < g_hi.abs() { lo } else { hi };
+        Ok(1.0 - s * s)
+    }
+
+    /// The line profile g(x) of reduced albedo `alpha` (exitance per entered
+    /// flux per mfp of line, s'_t = 1) at the distances `xs` (mfp).
+    pub fn line_profile(&self, alpha: f64, xs: &[f64]) -> Vec<f64> {
+        let ms = self.multiple_transform(alpha);
+        xs.par_iter()
+            .map(|&x| filon_cos(&self.k, &ms, x) / PI + alpha * self.single_at(x))
+            .collect()
+    }
+
+    /// M̂_ms(k) on the frequency grid, remembered for the last 8 albedos.
+    fn multiple_transform(&self, alpha: f64) -> Arc<Vec<f64>> {
+        let lock = || self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, ms)) = lock().iter().find(|(a, _)| *a == alpha) {
+            return ms.clone();
+        }
+        let ms: Arc<Vec<f64>> = Arc::new(
+            self.k
+                .par_iter()
+                .zip(&self.prims)
+                .map(|(&k, p)| solve_k(alpha, k, p).0)
+                .collect(),
+        );
+        let mut recent = lock();
+        if recent.len() >= 8 {
+            recent.remove(0);
+        }
+        recent.push((alpha, ms.clone()));
+        ms
+    }
+
+    /// Unit-albedo single scattering at x, from the table (its first entry
+    /// below SS_NEAR).
+    fn single_at(&self, x: f64) -> f64 {
+        let u = (x.abs().max(SS_NEAR) / SS_NEAR).ln() / SS_STEP;
+        let i = u.floor() as usize;
+        if i + 1 >= self.single.len() {
+            return 0.0;
+        }
+        let f = u - i as f64;
+        (self.single[i] * (1.0 - f) + self.single[i + 1] * f).exp()
+    }
+}
+
+/// Single scattering of a unit-albedo line beam at distance x, in real
+/// space: ∫∫ e^{-z} (1 - F(μ)) μ e^{-R} / (4π R²) dy dz, μ = z/R.
+fn single_line(eta: f64, x: f64) -> f64 {
+    let inner = |z: f64| {
+        let l = (x * x + z * z).sqrt().max(1e-9);
+        let f = |t: f64| {
+            if t >= 1.0 {
+                return 0.0;
+            }
+            let u = 1.0 - t;
+            let y = l * t / u;
+            let r = (x * x + y * y + z * z).sqrt();
+            let mu = z / r;
+            (1.0 - fresnel_dielectric(mu, 1.0 / eta)) * mu * (-r).exp() / (4.0 * PI * r * r) * l
+                / (u * u)
+        };
+        2.0 * quad::integrate(f, 0.0, 1.0, 1e-6, 1e-300, 200)
+    };
+    let outer = |t: f64| {
+        if t >= 1.0 {
+            return 0.0;
+        }
+        let u = 1.0 - t;
+        let z = t / u;
+        (-z).exp() * inner(z) / (u * u)
+    };
+    quad::integrate(outer, 0.0, 1.0, 1e-6, 1e-300, 200)
+}
+
+/// ∫_0^∞ f(k) cos(kx) dk: Filon's rule over the grid (f linear between
+/// nodes), and beyond its last node the first two terms of the asymptotic
+/// series, -f(K) sin(Kx)/x - f'(K) cos(Kx)/x², which cancel the ripple of
+/// period 2π/K that cutting the integral off would leave (valid for
+/// Kx >> 1; closer to the line, within 0.2 mfp, the cut stays).
+fn filon_cos(k: &[f64], f: &[f64], x: f64) -> f64 {
+    let mut sum = 0.0;
+    for i in 0..k.len() - 1 {
+        let (k0, k1, f0, f1) = (k[i], k[i + 1], f[i], f[i + 1]);
+        let h = k1 - k0;
+        if x * h < 1e-3 {
+            // Trapezoid when cos barely turns over the segment.
+            sum += 0.5 * h * (f0 * (k0 * x).cos() + f1 * (k1 * x).cos());
+            continue;
+        }
+        let slope = (f1 - f0) / h;
+        let (s0, s1, c0, c1) = (
+            (k0 * x).sin(),
+            (k1 * x).sin(),
+            (k0 * x).cos(),
+            (k1 * x).cos(),
+        );
+        sum += (f1 * s1 - f0 * s0) / x + slope * (c1 - c0) / (x * x);
+    }
+    let n = k.len();
+    if n >= 2 && k[n - 1] * x > 4.0 * PI {
+        let (kk, fk) = (k[n - 1], f[n - 1]);
+        let slope = (f[n - 1] - f[n - 2]) / (k[n - 1] - k[n - 2]);
+        sum -= fk * (kk * x).sin() / x + slope * (kk * x).cos() / (x * x);
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn j0_matches_its_integral() {
+        for &x in &[0.0, 0.5, 2.9, 3.1, 7.0, 30.0] {
+            let n = 4000;
+            let v: f64 = (0..n)
+                .map(|i| ((i as f64 + 0.5) / n as f64 * PI).sin())
+                .map(|s| (x * s).cos())
+                .sum::<f64>()
+                / n as f64;
+            assert!(
+                (bessel_j0(x) - v).abs() < 1e-7,
+                "{x}: {} vs {v}",
+                bessel_j0(x)
+            );
+        }
+    }
+
+    /// Chandrasekhar's H-function of isotropic scattering at μ = 1, from
+    /// 1/H(μ) = sqrt(1 - a) + (a/2) ∫ μ' H(μ') / (μ + μ') dμ', iterated.
+    fn chandrasekhar_h1(a: f64) -> f64 {
+        let n = 400;
+        let mu: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
+        let mut h = vec![1.0; n];
+        for _ in 0..2000 {
+            let next: Vec<f64> = mu
+                .iter()
+                .map(|&m| {
+                    let s: f64 = mu.iter().zip(&h).map(|(&q, &hq)| q * hq / (m + q)).sum();
+                    1.0 / ((1.0 - a).sqrt() + 0.5 * a * s / n as f64)
+                })
+                .collect();
+            h = next;
+        }
+        let s: f64 = mu.iter().zip(&h).map(|(&q, &hq)| q * hq / (1.0 + q)).sum();
+        1.0 / ((1.0 - a).sqrt() + 0.5 * a * s / n as f64)
+    }
+
+    #[test]
+    fn index_matched_reflectance_is_chandrasekhars() {
+        // Normal incidence on an index-matched half-space: R = 1 - H(1) sqrt(1 - a).
+        let hs = HalfSpace::new(1.0);
+        for a in [0.3, 0.7, 0.9, 0.99, 0.999] {
+            let exact = 1.0 - chandrasekhar_h1(a) * (1.0f64 - a).sqrt();
+            let r = hs.total_reflectance(a);
+            eprintln!("a {a}: R {r:.6} exact {exact:.6}");
+            assert!((r - exact).abs() < 5e-4, "a {a}: R {r} vs {exact}");
+        }
+    }
+
+    #[test]
+    fn conservative_half_space_reflects_everything() {
+        for eta in [1.3, 1.5] {
+            let r = HalfSpace::shared(eta).total_reflectance(1.0);
+            assert!((r - 1.0).abs() < 2e-3, "eta {eta}: R {r}");
+        }
+    }
+
+    #[test]
+    fn albedo_inversion_round_trips() {
+        let hs = HalfSpace::shared(1.3);
+        for a in [0.2, 0.8, 0.97, 0.999, 0.99995] {
+            let back = hs.albedo_from_reflectance(hs.total_reflectance(a)).unwrap();
+            assert!((back - a).abs() < 1e-8, "{a} -> {back}");
+        }
+        assert!(hs.albedo_from_reflectance(0.0).is_err());
+        assert!(hs.albedo_from_reflectance(1.5).is_err());
+        assert!(hs.albedo_from_reflectance(f64::NAN).is_err());
+    }
+
+    #[test]
+    fn line_profile_integrates_to_total_reflectance() {
+        let hs = HalfSpace::shared(1.3);
+        for a in [0.6, 0.99] {
+            // 2 ∫_0^∞ g(x) dx in u = ln(1 + x), midpoint rule (g is
+            // logarithmic at the line).
+            let h = 0.002;
+            let us: Vec<f64> = (0..(9.0 / h) as usize)
+                .map(|i| (i as f64 + 0.5) * h)
+                .collect();
+            let xs: Vec<f64> = us.iter().map(|u| u.exp() - 1.0).collect();
+            let g = hs.line_profile(a, &xs);
+            let integral: f64 = g.iter().zip(&us).map(|(g, u)| h * g * u.exp()).sum();
+            let r = hs.total_reflectance(a);
+            assert!(
+                (2.0 * integral / r - 1.0).abs() < 0.01,
+                "a {a}: {} vs {r}",
+                2.0 * integral
+            );
+        }
+    }
+}
