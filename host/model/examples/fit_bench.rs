@@ -71,6 +71,7 @@ fn main() {
         alpha_prime: [0.995, 0.98, 0.9],
         sigma_t_prime: [1.2, 1.8, 2.6],
         eta: 1.3,
+        model: ProfileModel::Dipole,
     };
     let dir = tempfile_dir();
     let spec = SynthSpec::small(truth);

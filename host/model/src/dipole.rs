@@ -10,8 +10,12 @@ use std::f64::consts::PI;
 
 use serde::{Deserialize, Serialize};
 
+use std::sync::Arc;
+
 use crate::ModelError;
+use crate::profile::ProfileModel;
 use crate::quad;
+use crate::transport::{HalfSpace, RadialProfile};
 
 /// Relative index of refraction the paper fits with (after Jensen et al. 2001).
 pub const DEFAULT_ETA: f64 = 1.3;
@@ -117,7 +121,9 @@ pub fn alpha_prime_from_reflectance(r: f64, eta: f64) -> Result<f64, ModelError>
     Ok(0.5 * (lo + hi))
 }
 
-/// The global dipole term of a material, per colour channel (R, G, B).
+/// The global (dipole) term of a material, per colour channel (R, G, B):
+/// the medium's reduced coefficients and the light transport its R_d(r)
+/// comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DipoleParams {
     /// Reduced albedo a' = s'_s / s'_t.
@@ -126,11 +132,14 @@ pub struct DipoleParams {
     pub sigma_t_prime: [f64; 3],
     /// Relative index of refraction.
     pub eta: f64,
+    /// What R_d(r) is: the paper's dipole, or radiative transfer.
+    #[serde(default = "ProfileModel::recorded_before_choice")]
+    pub model: ProfileModel,
 }
 
 impl DipoleParams {
     /// From reduced scattering and absorption coefficients (mm^-1), as in the
-    /// Jensen et al. 2001 table.
+    /// Jensen et al. 2001 table (dipole fits, so with the dipole's R_d).
     pub fn from_coefficients(sigma_s_prime: [f64; 3], sigma_a: [f64; 3], eta: f64) -> Self {
         let mut alpha_prime = [0.0; 3];
         let mut sigma_t_prime = [0.0; 3];
@@ -142,6 +151,7 @@ impl DipoleParams {
             alpha_prime,
             sigma_t_prime,
             eta,
+            model: ProfileModel::Dipole,
         }
     }
     /// Reduced scattering s'_s = a' s'_t.
@@ -156,13 +166,27 @@ impl DipoleParams {
     pub fn sigma_tr(&self) -> [f64; 3] {
         std::array::from_fn(|c| self.channel(c).sigma_tr)
     }
-    /// The single-channel dipole of channel `c`.
+    /// The single-channel classic dipole of channel `c`.
     pub fn channel(&self, c: usize) -> Dipole {
         Dipole::new(self.alpha_prime[c], self.sigma_t_prime[c], self.eta)
     }
-    /// R_d(r) for the three channels (mm^-2).
+    /// R_d(r) of the params' model, ready to evaluate (for transport, the
+    /// radial profiles are computed here, about 0.3 s a channel, and kept).
+    pub fn subsurface(&self) -> Subsurface {
+        Subsurface {
+            channels: std::array::from_fn(|c| match self.model {
+                ProfileModel::Dipole => ChannelProfile::Dipole(self.channel(c)),
+                ProfileModel::Transport => ChannelProfile::Transport {
+                    profile: HalfSpace::shared(self.eta).radial_profile(self.alpha_prime[c]),
+                    sigma_t_prime: self.sigma_t_prime[c],
+                },
+            }),
+        }
+    }
+    /// R_d(r) for the three channels (mm^-2). Evaluating many r: use
+    /// [`Self::subsurface`] once.
     pub fn rd(&self, r: f64) -> [f64; 3] {
-        std::array::from_fn(|c| self.channel(c).rd(r))
+        self.subsurface().rd(r)
     }
     /// Checks the parameters are physical: a' in [0, 1], s'_t in (0, 10·∞), eta in (1, 3).
     pub fn validate(&self) -> Result<(), String> {
@@ -179,6 +203,51 @@ impl DipoleParams {
             return Err(format!("eta = {} is outside (1, 3)", self.eta));
         }
         Ok(())
+    }
+}
+
+/// A material's R_d(r) per channel, per entered flux (mm^-2), with its
+/// total and disc integrals: what the renderer and the LRF's global part use.
+pub struct Subsurface {
+    channels: [ChannelProfile; 3],
+}
+
+enum ChannelProfile {
+    Dipole(Dipole),
+    /// Unit-s'_t radial profile, scaled: R_d(r) = s'_t² R_1(s'_t r).
+    Transport {
+        profile: Arc<RadialProfile>,
+        sigma_t_prime: f64,
+    },
+}
+
+impl Subsurface {
+    /// R_d(r) for the three channels, mm^-2.
+    pub fn rd(&self, r: f64) -> [f64; 3] {
+        std::array::from_fn(|c| match &self.channels[c] {
+            ChannelProfile::Dipole(d) => d.rd(r),
+            ChannelProfile::Transport {
+                profile,
+                sigma_t_prime: st,
+            } => st * st * profile.rd(st * r),
+        })
+    }
+    /// R_d integrated over the plane (the total diffuse reflectance).
+    pub fn total(&self, c: usize) -> f64 {
+        match &self.channels[c] {
+            ChannelProfile::Dipole(d) => d.total(),
+            ChannelProfile::Transport { profile, .. } => profile.total,
+        }
+    }
+    /// R_d integrated over the disc of radius `r0` around the source.
+    pub fn disc_integral(&self, c: usize, r0: f64) -> f64 {
+        match &self.channels[c] {
+            ChannelProfile::Dipole(d) => d.disc_integral(r0),
+            ChannelProfile::Transport {
+                profile,
+                sigma_t_prime: st,
+            } => profile.disc_integral(st * r0),
+        }
     }
 }
 

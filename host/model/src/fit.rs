@@ -138,8 +138,28 @@ impl EnteringStripe {
     fn stripe(&self, d: f64) -> f64 {
         self.t_in * self.table.eval(d, self.sigma_t_prime)
     }
+    /// The mean of [`Self::stripe`] across a texel `w` wide centred at `d`:
+    /// what an area-mean texel measures.
+    fn texel_mean(&self, d: f64, w: f64) -> f64 {
+        crate::quad::GL5
+            .iter()
+            .map(|&(x, wt)| 0.5 * wt * self.stripe((d + 0.5 * w * x).abs()))
+            .sum()
+    }
     fn total(&self) -> f64 {
         self.t_in * self.total
+    }
+    /// ∫_{d0}^∞ of [`Self::stripe`] (d = d0 + L t/(1 - t), L = 1/s'_t).
+    fn tail(&self, d0: f64) -> f64 {
+        let l = 1.0 / self.sigma_t_prime;
+        let f = |t: f64| {
+            if t >= 1.0 {
+                return 0.0;
+            }
+            let u = 1.0 - t;
+            self.stripe(d0 + l * t / u) * l / (u * u)
+        };
+        crate::quad::integrate(f, 0.0, 1.0, 1e-6, 1e-300, 200)
     }
 }
 
@@ -233,8 +253,8 @@ fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&Enterin
     let tail = if pts.len() >= 4 && kappa > 1e-3 {
         (my - kappa * (d_end - mx)).exp() / kappa
     } else if let Some(dp) = dp {
-        // No usable decay (too few or noisy points): the dipole's own tail.
-        (dp.total() / 2.0 - (0..=last).map(|k| dp.stripe(centre(k))).sum::<f64>() * bin).max(0.0)
+        // No usable decay (too few or noisy points): the model's own tail.
+        dp.tail(d_end)
     } else {
         0.0
     };
@@ -315,8 +335,10 @@ pub fn fit_capture(
                 |a, b| Ok((a.0.merged(b.0), a.1.merged(b.1))),
             )?;
         // Points sit at the mean distance of their texels, so uneven
-        // coverage inside a bin does not bias the fit.
-        let profile = Profile::new(fine.points(), 0.0);
+        // coverage inside a bin does not bias the fit; each texel is an area
+        // mean, so the model is averaged over a texel's width across the
+        // line (at ci, 0.67 mm, this moves s'_t by +0.5..+3 %).
+        let profile = Profile::new(fine.points(), grid.texel_mm);
         let means = coarse.means();
         if profile.distance_mm.len() < 5 {
             return Err(ModelError::Fit(format!(
@@ -381,6 +403,7 @@ pub fn fit_capture(
         alpha_prime: std::array::from_fn(|c| channels[c].fit.alpha_prime),
         sigma_t_prime: std::array::from_fn(|c| channels[c].fit.sigma_t_prime),
         eta: opts.eta,
+        model: opts.model,
     };
     // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
     let t_in = dipole::normal_transmittance(opts.eta);
@@ -421,7 +444,8 @@ pub fn fit_capture(
                         // Only where the dipole was fitted: the near field is not diffusion.
                         if l.is_finite() && d >= lo && d <= hi {
                             num[j * w + i][c] += l;
-                            den[j * w + i][c] += tables[c].stripe(d) * s.flux_per_mm / PI;
+                            den[j * w + i][c] +=
+                                tables[c].texel_mean(d, grid.texel_mm) * s.flux_per_mm / PI;
                         }
                     }
                 }
@@ -467,10 +491,9 @@ pub fn fit_capture(
     let t0 = Instant::now();
     // The texel's own area as an equal-area disc: the paper's x_i != x_o.
     let r0 = grid.texel_mm / PI.sqrt();
-    let global: [f64; 3] = std::array::from_fn(|c| {
-        let dp = dipole.channel(c);
-        t_in * (dp.total() - dp.disc_integral(r0))
-    });
+    let subsurface = dipole.subsurface();
+    let global: [f64; 3] =
+        std::array::from_fn(|c| t_in * (subsurface.total(c) - subsurface.disc_integral(c, r0)));
     let lrf: Vec<(LrfSample, Texture, usize)> = data
         .index
         .lamp
@@ -803,6 +826,27 @@ mod tests {
             );
             // Without the model the near field is simply missing.
             assert!(reflectance_from_profile(&means, bin, None) < 0.95 * r);
+            // A far third with no positive value (noise around 0): the
+            // model's own tail beyond the last bin, by quadrature.
+            let short: Vec<Option<f64>> = (0..300)
+                .map(|k| {
+                    let d = (k as f64 + 0.5) * bin;
+                    if d < 4.0 { means[k] } else { Some(0.0) }
+                })
+                .collect();
+            let expect = 2.0 * (short.iter().map(|m| m.unwrap_or(0.0)).sum::<f64>() * bin)
+                + 2.0 * dp.tail(300.0 * bin)
+                + 2.0
+                    * (0..25)
+                        .map(|k| dp.stripe((k as f64 + 0.5) * bin))
+                        .sum::<f64>()
+                    * bin;
+            let got = reflectance_from_profile(&short, bin, Some(&dp));
+            assert!(
+                (got / expect - 1.0).abs() < 1e-6,
+                "{model:?}: {got} vs {expect}"
+            );
+            assert!(dp.tail(300.0 * bin) < 0.05 * dp.total(), "{model:?}");
         }
     }
 }

@@ -23,6 +23,7 @@ use crate::model::{
     EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
     Texture, norm,
 };
+use crate::profile::ProfileModel;
 
 /// The `format` string of a manifest.
 pub const FORMAT: &str = "qhm-material";
@@ -76,6 +77,9 @@ struct TextureInfo {
 #[derive(Serialize, Deserialize)]
 struct DipoleSection {
     eta: f64,
+    /// The light transport R_d(r) comes from (files before it: "dipole").
+    #[serde(default = "ProfileModel::recorded_before_choice")]
+    model: ProfileModel,
     alpha_prime: [f64; 3],
     sigma_t_prime: [f64; 3],
     /// Informative: s'_s = a' s'_t.
@@ -199,6 +203,7 @@ impl MaterialModel {
             },
             dipole: DipoleSection {
                 eta: self.dipole.eta,
+                model: self.dipole.model,
                 alpha_prime: self.dipole.alpha_prime,
                 sigma_t_prime: self.dipole.sigma_t_prime,
                 sigma_s_prime: self.dipole.sigma_s_prime(),
@@ -257,6 +262,7 @@ impl MaterialModel {
             alpha_prime: m.dipole.alpha_prime,
             sigma_t_prime: m.dipole.sigma_t_prime,
             eta: m.dipole.eta,
+            model: m.dipole.model,
         };
         let entrance = EntranceFunction {
             n_theta: m.entrance.n_theta,
@@ -449,6 +455,7 @@ mod tests {
             alpha_prime: [0.999, 0.99, 0.9],
             sigma_t_prime: [1.2, 1.6, 2.2],
             eta: 1.3,
+            model: ProfileModel::Dipole,
         });
         let (w, h) = (4, 3);
         m.width = w as u32;
@@ -507,6 +514,34 @@ mod tests {
         let d = back.lrf([0.3, 0.4], [0.0, 0.6, 0.8], m.lrf.samples[2].view);
         let e = m.lrf([0.3, 0.4], [0.0, 0.6, 0.8], m.lrf.samples[2].view);
         assert!((0..3).all(|c| (d[c] - e[c]).abs() < 1e-3), "{d:?} vs {e:?}");
+    }
+
+    #[test]
+    fn the_profile_model_is_kept_and_defaults_to_the_dipole() {
+        let mut m = sample_model();
+        m.dipole.model = ProfileModel::Transport;
+        let dir = tempfile::tempdir().unwrap();
+        m.save(dir.path()).unwrap();
+        assert_eq!(
+            MaterialModel::load(dir.path()).unwrap().dipole.model,
+            ProfileModel::Transport
+        );
+        // Version-2 files written before the choice have no `model`: the dipole.
+        edit(dir.path(), "model = \"transport\"\n", "");
+        assert_eq!(
+            MaterialModel::load(dir.path()).unwrap().dipole.model,
+            ProfileModel::Dipole
+        );
+        edit(
+            dir.path(),
+            "[dipole]\n",
+            "[dipole]\nmodel = \"diffusion\"\n",
+        );
+        assert!(
+            load_err(dir.path()).contains("diffusion"),
+            "{}",
+            load_err(dir.path())
+        );
     }
 
     fn edit(dir: &Path, from: &str, to: &str) {

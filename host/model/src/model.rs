@@ -274,6 +274,7 @@ mod tests {
             alpha_prime: [0.99, 0.98, 0.9],
             sigma_t_prime: [1.0, 1.5, 2.0],
             eta: 1.3,
+            model: crate::profile::ProfileModel::Dipole,
         }
     }
 

@@ -6,7 +6,6 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::ModelError;
-use crate::dipole::Dipole;
 use crate::model::{MaterialModel, Texture};
 
 const COLOURS: [&str; 3] = ["#d62728", "#2ca02c", "#1f77b4"];
@@ -168,13 +167,18 @@ pub fn profile_svg(model: &MaterialModel) -> Option<String> {
                 );
             }
         }
-        let dp = Dipole::new(ch.fit.alpha_prime, ch.fit.sigma_t_prime, model.dipole.eta);
-        // Measured points are per incident flux: T(0) I_D(d) (qhm_model::profile).
+        // The fitted I_D(d) of the fit's own model; measured points are per
+        // incident flux: T(0) I_D(d) (qhm_model::profile).
+        let (a, st) = (ch.fit.alpha_prime, ch.fit.sigma_t_prime);
+        let table = ch
+            .fit
+            .model
+            .stripe_table(a, model.dipole.eta, st * x1 * 1.01);
         let t_in = crate::dipole::normal_transmittance(model.dipole.eta);
         let pts: Vec<String> = (0..=300)
             .map(|k| {
                 let d = x1 * k as f64 / 300.0;
-                format!("{:.1},{:.1}", f.px(d), f.py(t_in * dp.stripe(d)))
+                format!("{:.1},{:.1}", f.px(d), f.py(t_in * table.eval(d, st)))
             })
             .collect();
         let _ = writeln!(
@@ -393,6 +397,7 @@ mod tests {
             alpha_prime: [0.99, 0.97, 0.9],
             sigma_t_prime: [1.0, 1.5, 2.0],
             eta: 1.3,
+            model: crate::profile::ProfileModel::Dipole,
         };
         let cap = tempfile::tempdir().unwrap();
         let mut spec = SynthSpec::small(truth);

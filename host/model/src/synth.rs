@@ -172,15 +172,19 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
             for i in 0..w {
                 let d = s.distance(grid.centre(i, j));
                 let mut v = [0.0f32; 3];
+                // A texel is an area mean: I_D averaged across its width
+                // (the lines run along the texel grid).
+                let i_d: f64 = crate::quad::GL5
+                    .iter()
+                    .map(|&(x, wt)| {
+                        0.5 * wt * tables[c].eval((d + 0.5 * spec.texel_mm * x).abs(), st)
+                    })
+                    .sum();
                 v[c] = if d < spec.near_field_mm {
                     f32::NAN
                 } else {
-                    (spec.fv_pattern(i, j, s.view_dir)
-                        * shape
-                        * f
-                        * s.flux_per_mm
-                        * tables[c].eval(d, st)
-                        / PI) as f32
+                    (spec.fv_pattern(i, j, s.view_dir) * shape * f * s.flux_per_mm * i_d / PI)
+                        as f32
                 };
                 img.data[j * w + i] = v;
             }
@@ -243,6 +247,7 @@ mod tests {
             alpha_prime: [0.995, 0.98, 0.9],
             sigma_t_prime: [1.2, 1.8, 2.6],
             eta: 1.3,
+            model: crate::profile::ProfileModel::Dipole,
         };
         let spec = SynthSpec::small(truth);
         let dir = tempfile::tempdir().unwrap();

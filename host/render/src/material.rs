@@ -109,6 +109,7 @@ pub fn preset(name: &str) -> Option<DipoleParams> {
         alpha_prime: a,
         sigma_t_prime: s,
         eta: 1.3,
+        model: qhm_model::profile::ProfileModel::Dipole,
     };
     Some(match name {
         "marble" => j([2.19, 2.62, 3.00], [0.0021, 0.0041, 0.0071], 1.5),

@@ -19,7 +19,7 @@ use crate::points::SurfaceSamples;
 
 /// R_d(r) of the model's dipole, tabulated in r for speed (linear
 /// interpolation, 4096 cells up to `r_max` where R_d has fallen below 1e-6
-/// of its peak in every channel; zero beyond).
+/// of its value at one mean free path in every channel; zero beyond).
 ///
 /// Each surface sample stands for a patch of area A, so the table holds the
 /// mean of R_d over a disk of radius rho = sqrt(A / pi) centred at distance
@@ -45,16 +45,20 @@ impl RdTable {
     pub fn with_hole(params: &DipoleParams, rho: f32, hole: f32) -> RdTable {
         let rho = rho.max(0.0) as f64;
         let hole = hole.max(0.0) as f64;
+        let subsurface = params.subsurface();
         let g = |r: f64| {
             if hole == 0.0 || r > hole {
-                params.rd(r)
+                subsurface.rd(r)
             } else {
                 [0.0; 3]
             }
         };
-        let peak = params.rd(0.0);
+        // R_d at one mean free path of the densest channel (at 0,
+        // radiative transfer's single scattering is singular).
+        let mfp = 1.0 / params.sigma_t_prime.iter().fold(0.0f64, |a, &b| a.max(b));
+        let peak = subsurface.rd(mfp);
         let below = |r: f64| {
-            let v = params.rd(r);
+            let v = subsurface.rd(r);
             (0..3).all(|c| !(v[c] > 1e-6 * peak[c]))
         };
         let mut r_max = 1.0f64;
