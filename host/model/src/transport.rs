@@ -16,12 +16,15 @@
 //!
 //! C is piecewise constant on depth cells, collocated at their midpoints,
 //! with the kernels integrated exactly over each cell through tabulated
-//! primitives. Single scattering is taken out and integrated in real space
-//! (its transform decays slowly); the rest is transformed back by a Filon
-//! rule. At k = 0 the same system gives the exact total reflectance.
+//! primitives; below NEAR_DEPTH it is the slowest exact transport mode.
+//! Single scattering is taken out and integrated in real space (its
+//! transform decays slowly); the rest is transformed back by a Filon rule.
+//! At k = 0 the same system gives the exact total reflectance, and a Hankel
+//! transform of the same data the radial profile R_d(r) the renderer uses.
+//! Checked against Chandrasekhar's exact index-matched reflectance and
+//! against sim-light's Monte Carlo (tests/tests/model_mc_profile.rs).
 
 use std::f64::consts::PI;
-
 use std::sync::{Arc, Mutex, OnceLock};
 
 use rayon::prelude::*;
@@ -257,11 +260,11 @@ fn tail_nodes() -> Vec<(f64, f64)> {
     nodes
 }
 
-/// Solves the depth equation at frequency k: (multiply scattered exitance
-/// M̂_ms(k), single-scattered M̂_ss(k) of the discretisation). Below
-/// NEAR_DEPTH the source is B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² + k²),
-/// with B continuous with the last cell.
-fn solve_k(alpha: f64, k: f64, prim: &Primitives) -> (f64, f64) {
+/// Solves the depth equation at frequency k for the multiply scattered
+/// exitance M̂_ms(k) (single scattering is integrated exactly elsewhere).
+/// Below NEAR_DEPTH the source is B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² +
+/// k²), with B continuous with the last cell.
+fn solve_k(alpha: f64, k: f64, prim: &Primitives) -> f64 {
     let edges = depth_cells();
     let n = edges.len() - 1;
     let m = n + 1; // cells + the tail's amplitude
@@ -305,9 +308,7 @@ fn solve_k(alpha: f64, k: f64, prim: &Primitives) -> (f64, f64) {
         .windows(2)
         .map(|w| prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0]))
         .collect();
-    let ms = (0..n).map(|j| (c[j] - source[j]) * exit[j]).sum();
-    let ss = (0..n).map(|j| source[j] * exit[j]).sum();
-    (ms, ss)
+    (0..n).map(|j| (c[j] - source[j]) * exit[j]).sum()
 }
 
 /// Gaussian elimination with partial pivoting (row-major `a`, n x n).
@@ -426,8 +427,7 @@ impl HalfSpace {
 
     /// Total diffuse reflectance per entered flux of reduced albedo `alpha`.
     pub fn total_reflectance(&self, alpha: f64) -> f64 {
-        let (ms, _) = solve_k(alpha, 0.0, &self.prims[0]);
-        ms + self.single_total(alpha)
+        solve_k(alpha, 0.0, &self.prims[0]) + self.single_total(alpha)
     }
 
     /// Inverts [`Self::total_reflectance`] (monotone in a') in s = sqrt(1 - a'),
@@ -482,39 +482,19 @@ impl HalfSpace {
 
     /// M̂_ms(k) on the frequency grid, remembered for the last 8 albedos.
     fn multiple_transform(&self, alpha: f64) -> Arc<Vec<f64>> {
-        let lock = || self.recent.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, ms)) = lock().iter().find(|(a, _)| *a == alpha) {
-            return ms.clone();
-        }
-        let ms: Arc<Vec<f64>> = Arc::new(
+        remembered(&self.recent, alpha, || {
             self.k
                 .par_iter()
                 .zip(&self.prims)
-                .map(|(&k, p)| solve_k(alpha, k, p).0)
-                .collect(),
-        );
-        let mut recent = lock();
-        if recent.len() >= 8 {
-            recent.remove(0);
-        }
-        recent.push((alpha, ms.clone()));
-        ms
+                .map(|(&k, p)| solve_k(alpha, k, p))
+                .collect()
+        })
     }
 
     /// The radial profile R_d(x) of a normal pencil beam (per entered flux,
     /// unit s'_t) of reduced albedo `alpha`, remembered for the last 8.
     pub fn radial_profile(&self, alpha: f64) -> Arc<RadialProfile> {
-        let lock = || self.radial.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, p)) = lock().iter().find(|(a, _)| *a == alpha) {
-            return p.clone();
-        }
-        let p = Arc::new(RadialProfile::new(self, alpha));
-        let mut radial = lock();
-        if radial.len() >= 8 {
-            radial.remove(0);
-        }
-        radial.push((alpha, p.clone()));
-        p
+        remembered(&self.radial, alpha, || RadialProfile::new(self, alpha))
     }
 
     /// Unit-albedo single scattering at x, from the table (its first entry
@@ -528,6 +508,25 @@ impl HalfSpace {
         let f = u - i as f64;
         (self.single[i] * (1.0 - f) + self.single[i + 1] * f).exp()
     }
+}
+
+/// The value for `alpha` from `cache` (the last 8 albedos asked), or `make`'s.
+fn remembered<T>(
+    cache: &Mutex<Vec<(f64, Arc<T>)>>,
+    alpha: f64,
+    make: impl FnOnce() -> T,
+) -> Arc<T> {
+    let lock = || cache.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, v)) = lock().iter().find(|(a, _)| *a == alpha) {
+        return v.clone();
+    }
+    let v = Arc::new(make());
+    let mut cache = lock();
+    if cache.len() >= 8 {
+        cache.remove(0);
+    }
+    cache.push((alpha, v.clone()));
+    v
 }
 
 /// R_d(x) of a normal pencil beam at unit s'_t, tabulated in ln x from
