@@ -393,6 +393,19 @@ impl ScaledStripe {
         };
         sigma_t_prime * ln_g.exp()
     }
+
+    /// Mean of I_D over [d - w/2, d + w/2] (5-point Gauss-Legendre): what a
+    /// distance bin or an area-mean texel `w` wide measures; `w = 0` is
+    /// the point value.
+    pub fn bin_mean(&self, d: f64, w: f64, sigma_t_prime: f64) -> f64 {
+        if w <= 0.0 {
+            return self.eval(d, sigma_t_prime);
+        }
+        quad::GL5
+            .iter()
+            .map(|&(x, wt)| 0.5 * wt * self.eval(d + 0.5 * w * x, sigma_t_prime))
+            .sum()
+    }
 }
 
 #[cfg(test)]

@@ -139,10 +139,7 @@ impl EnteringStripe {
     /// The mean of [`Self::stripe`] across a texel `w` wide centred at `d`:
     /// what an area-mean texel measures.
     fn texel_mean(&self, d: f64, w: f64) -> f64 {
-        crate::quad::GL5
-            .iter()
-            .map(|&(x, wt)| 0.5 * wt * self.stripe((d + 0.5 * w * x).abs()))
-            .sum()
+        self.t_in * self.table.bin_mean(d, w, self.sigma_t_prime)
     }
     /// ∫_{d0}^∞ of [`Self::stripe`] (d = d0 + L t/(1 - t), L = 1/s'_t).
     fn tail(&self, d0: f64) -> f64 {

@@ -389,14 +389,7 @@ fn misfit(
         .zip(weight)
         .map(|(&k, w8)| {
             let d = profile.distance_mm[k];
-            let model: f64 = if w > 0.0 {
-                crate::quad::GL5
-                    .iter()
-                    .map(|&(x, wt)| 0.5 * wt * table.eval(d + 0.5 * w * x, sigma_t_prime))
-                    .sum()
-            } else {
-                table.eval(d, sigma_t_prime)
-            };
+            let model = table.bin_mean(d, w, sigma_t_prime);
             w8 * (model - profile.intensity[k]).powi(2)
         })
         .sum()

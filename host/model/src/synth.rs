@@ -174,12 +174,7 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
                 let mut v = [0.0f32; 3];
                 // A texel is an area mean: I_D averaged across its width
                 // (the lines run along the texel grid).
-                let i_d: f64 = crate::quad::GL5
-                    .iter()
-                    .map(|&(x, wt)| {
-                        0.5 * wt * tables[c].eval((d + 0.5 * spec.texel_mm * x).abs(), st)
-                    })
-                    .sum();
+                let i_d = tables[c].bin_mean(d, spec.texel_mm, st);
                 v[c] = if d < spec.near_field_mm {
                     f32::NAN
                 } else {

@@ -123,7 +123,8 @@ fn primitive_grid() -> Vec<f64> {
 /// Primitives of the three kernels at one k, on `primitive_grid()`:
 /// P(t) = ∫_0^t K, P_F(t) = ∫_0^t K_F, P_T(t) = ∫_0^t T.
 struct Primitives {
-    grid: Vec<f64>,
+    /// `primitive_grid()`, one copy shared by every k.
+    grid: Arc<[f64]>,
     p: Vec<f64>,
     p_f: Vec<f64>,
     p_t: Vec<f64>,
@@ -157,7 +158,7 @@ fn damped_j0_primitive(c: f64, xs: impl Iterator<Item = f64>, out: &mut Vec<f64>
 }
 
 impl Primitives {
-    fn new(k: f64, angles: &Angles, grid: &[f64]) -> Self {
+    fn new(k: f64, angles: &Angles, grid: &Arc<[f64]>) -> Self {
         let n = grid.len();
         let (mut p, mut p_f, mut p_t) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut g = Vec::with_capacity(n);
@@ -173,7 +174,7 @@ impl Primitives {
             }
         }
         Primitives {
-            grid: grid.to_vec(),
+            grid: grid.clone(),
             p,
             p_f,
             p_t,
@@ -263,12 +264,13 @@ fn tail_nodes() -> Vec<(f64, f64)> {
 /// Solves the depth equation at frequency k for the multiply scattered
 /// exitance M̂_ms(k) (single scattering is integrated exactly elsewhere).
 /// Below NEAR_DEPTH the source is B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² +
-/// k²), with B continuous with the last cell.
-fn solve_k(alpha: f64, k: f64, prim: &Primitives) -> f64 {
+/// k²) with p0 = [`asymptotic_decay`] of `alpha`, B continuous with the
+/// last cell.
+fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
     let edges = depth_cells();
     let n = edges.len() - 1;
     let m = n + 1; // cells + the tail's amplitude
-    let kappa = (asymptotic_decay(alpha).powi(2) + k * k).sqrt();
+    let kappa = (p0 * p0 + k * k).sqrt();
     let mid: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
     let p_inf = prim.p[prim.p.len() - 1];
     let tail = tail_nodes();
@@ -374,7 +376,7 @@ const SS_REACH: f64 = 40.0;
 impl HalfSpace {
     pub fn new(eta: f64) -> Self {
         let angles = Angles::new(eta);
-        let grid = primitive_grid();
+        let grid: Arc<[f64]> = primitive_grid().into();
         let mut k = vec![0.0];
         let mut x = 1e-4;
         while x < K_MAX {
@@ -427,7 +429,7 @@ impl HalfSpace {
 
     /// Total diffuse reflectance per entered flux of reduced albedo `alpha`.
     pub fn total_reflectance(&self, alpha: f64) -> f64 {
-        solve_k(alpha, 0.0, &self.prims[0]) + self.single_total(alpha)
+        solve_k(alpha, asymptotic_decay(alpha), 0.0, &self.prims[0]) + self.single_total(alpha)
     }
 
     /// Inverts [`Self::total_reflectance`] (monotone in a') in s = sqrt(1 - a'),
@@ -483,10 +485,11 @@ impl HalfSpace {
     /// M̂_ms(k) on the frequency grid, remembered for the last 8 albedos.
     fn multiple_transform(&self, alpha: f64) -> Arc<Vec<f64>> {
         remembered(&self.recent, alpha, || {
+            let p0 = asymptotic_decay(alpha);
             self.k
                 .par_iter()
                 .zip(&self.prims)
-                .map(|(&k, p)| solve_k(alpha, k, p))
+                .map(|(&k, p)| solve_k(alpha, p0, k, p))
                 .collect()
         })
     }
