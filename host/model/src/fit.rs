@@ -3,9 +3,11 @@
 //!
 //! 1. I(d) from the vertical (pass-2) stripe images: exitance per incident
 //!    flux per mm, binned by distance d from each stripe's line and averaged
-//!    over views. Each view's radiance becomes exitance through the Fresnel
-//!    transmittance of diffuse light (`dipole::exitance_per_radiance`), not
-//!    Lambert's π L.
+//!    over views. Each view's radiance becomes exitance through the angular
+//!    distribution of the light under the boundary and its Fresnel
+//!    transmittance ([`ProfileModel::exitance_per_radiance`]), not Lambert's
+//!    π L: isotropic for the dipole, exact for transport (at a' 0.8 the
+//!    isotropic guess puts R 3 % low and a' 0.007 low).
 //! 2. R = 2 ∫ I(d) dd: near-field bins the capture lacks (masked as NaN) are
 //!    filled from the dipole by iterating R -> a' -> s'_t; beyond the data the
 //!    measured tail is continued at its own exponential decay.
@@ -30,7 +32,7 @@ use crate::model::{
     EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
     Texture,
 };
-use crate::profile::{ChannelFit, Norm, Profile, ProfileModel, fit_profile};
+use crate::profile::{ChannelFit, Norm, Profile, ProfileFit, ProfileModel, fit_profile};
 use crate::rectified::{Rectified, StripeEntry};
 
 /// Options of [`fit_capture`].
@@ -157,6 +159,7 @@ impl EnteringStripe {
 
 /// Radiance summed by distance from a stripe's line in bins of `width` mm,
 /// with the summed distances (each bin's mean distance) and texel counts.
+#[derive(Clone)]
 struct DistanceBins {
     width: f64,
     sum: Vec<f64>,
@@ -180,6 +183,13 @@ impl DistanceBins {
             self.sum[b] += value;
             self.dsum[b] += d;
             self.count[b] += 1;
+        }
+    }
+    /// The same bins with every value times `k`.
+    fn scaled(&self, k: f64) -> Self {
+        DistanceBins {
+            sum: self.sum.iter().map(|s| s * k).collect(),
+            ..self.clone()
         }
     }
     fn merged(mut self, other: DistanceBins) -> Self {
@@ -275,7 +285,6 @@ pub fn fit_capture(
     let t0 = Instant::now();
     let mut channels = Vec::new();
     let mut stripes: [Option<EnteringStripe>; 3] = [None, None, None];
-    let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
     for c in 0..3u8 {
         let entries: Vec<&StripeEntry> = data
             .index
@@ -288,16 +297,18 @@ pub fn fit_capture(
                 "no pass-2 (vertical stripe) images for channel {c}"
             )));
         }
-        // Per image, merged: the profile in fine bins for the s'_t fit, and
-        // in texel-wide bins for R. A texel is an area mean, so the texels
-        // of a texel-wide bin sum to the flux across the line; finer bins
-        // leave gaps between texel distances that only the dipole could fill.
-        let (fine, coarse) = entries
+        // Per view, merged: radiance per incident flux per mm in fine bins
+        // for the s'_t fit, and in texel-wide bins for R. A texel is an area
+        // mean, so the texels of a texel-wide bin sum to the flux across the
+        // line; finer bins leave gaps between texel distances that only the
+        // model could fill. Views stay apart because turning radiance into
+        // exitance depends on the view and, through the light's angular
+        // distribution, on a'.
+        let per_image = entries
             .par_iter()
-            .map(|s| -> Result<(DistanceBins, DistanceBins), ModelError> {
+            .map(|s| -> Result<_, ModelError> {
                 let img = data.read_image(&s.file)?;
-                let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average)
-                    / s.flux_per_mm;
+                let k = 1.0 / s.flux_per_mm;
                 let skip = if sees_specular(s) {
                     core_mm(&grid)
                 } else {
@@ -315,23 +326,39 @@ pub fn fit_capture(
                         }
                     }
                 }
-                Ok((fine, coarse))
+                Ok((dir_key(s.view_dir), s.view_dir[2], fine, coarse))
             })
-            .try_reduce(
-                || {
-                    (
-                        DistanceBins::new(bin, diag_max),
-                        DistanceBins::new(grid.texel_mm, diag_max),
-                    )
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut views: BTreeMap<[i64; 3], (f64, DistanceBins, DistanceBins)> = BTreeMap::new();
+        for (key, cos, fine, coarse) in per_image {
+            let merged = match views.remove(&key) {
+                Some((_, f, co)) => (cos, f.merged(fine), co.merged(coarse)),
+                None => (cos, fine, coarse),
+            };
+            views.insert(key, merged);
+        }
+        let cos_views: Vec<f64> = views.values().map(|v| v.0).collect();
+        // I(d) with each view's radiance turned into exitance: points at the
+        // mean distance of their texels (uneven coverage inside a bin does
+        // not bias the fit), and the texel-wide bins' means for R. Each
+        // texel is an area mean, so the model is averaged over a texel's
+        // width across the line (at ci, 0.67 mm, this moves s'_t by +0.5..+3 %).
+        let exitance = |per_radiance: &[f64]| {
+            let (fine, coarse) = views.values().zip(per_radiance).fold(
+                (
+                    DistanceBins::new(bin, diag_max),
+                    DistanceBins::new(grid.texel_mm, diag_max),
+                ),
+                |(fine, coarse), ((_, f, co), &k)| {
+                    (fine.merged(f.scaled(k)), coarse.merged(co.scaled(k)))
                 },
-                |a, b| Ok((a.0.merged(b.0), a.1.merged(b.1))),
-            )?;
-        // Points sit at the mean distance of their texels, so uneven
-        // coverage inside a bin does not bias the fit; each texel is an area
-        // mean, so the model is averaged over a texel's width across the
-        // line (at ci, 0.67 mm, this moves s'_t by +0.5..+3 %).
-        let profile = Profile::new(fine.points(), grid.texel_mm);
-        let means = coarse.means();
+            );
+            (Profile::new(fine.points(), grid.texel_mm), coarse.means())
+        };
+        // Until a' is known, the light under the boundary is taken as isotropic.
+        let (mut profile, mut means) = exitance(
+            &ProfileModel::Dipole.exitance_per_radiance(1.0, opts.eta, &cos_views),
+        );
         if profile.distance_mm.len() < 5 {
             return Err(ModelError::Fit(format!(
                 "channel {c}: only {} distance bins have valid texels",
@@ -343,8 +370,9 @@ pub fn fit_capture(
                 "channel {c}: no outgoing flux in the vertical stripe images"
             )));
         }
-        // R and the fit depend on each other only through the dipole's fill
-        // of the unmeasured near field: a few rounds converge.
+        // R and the fit depend on each other through the model's fill of
+        // the unmeasured near field and through the radiance-to-exitance
+        // conversion: a few rounds converge.
         let mut r = reflectance_from_profile(&means, grid.texel_mm, None);
         let mut fit = None;
         // The automatic range is chosen once, with the first R.
@@ -356,10 +384,8 @@ pub fn fit_capture(
             range = Some((f.range_mm[0], f.range_mm[1]));
             let auto = fit
                 .as_ref()
-                .map_or(f.auto_range, |x: &(f64, crate::profile::ProfileFit)| {
-                    x.1.auto_range
-                });
-            let f = crate::profile::ProfileFit {
+                .map_or(f.auto_range, |x: &(f64, ProfileFit, Profile)| x.1.auto_range);
+            let f = ProfileFit {
                 auto_range: auto,
                 ..f
             };
@@ -370,7 +396,13 @@ pub fn fit_capture(
                 opts.eta,
                 diag_max,
             );
-            fit = Some((r_used, f));
+            let converted = exitance(&opts.model.exitance_per_radiance(
+                f.alpha_prime,
+                opts.eta,
+                &cos_views,
+            ));
+            fit = Some((r_used, f, std::mem::replace(&mut profile, converted.0)));
+            means = converted.1;
             let next = reflectance_from_profile(&means, grid.texel_mm, Some(&dp));
             stripes[c as usize] = Some(dp);
             if (next - r).abs() < 1e-9 * r {
@@ -378,7 +410,7 @@ pub fn fit_capture(
             }
             r = next;
         }
-        let (r_used, fit) = fit.expect("at least one iteration");
+        let (r_used, fit, profile) = fit.expect("at least one iteration");
         if r > 1.0 {
             notes.push(format!(
                 "channel {c}: measured R = {r:.4} > 1, clamped to 1"

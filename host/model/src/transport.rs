@@ -261,12 +261,11 @@ fn tail_nodes() -> Vec<(f64, f64)> {
     nodes
 }
 
-/// Solves the depth equation at frequency k for the multiply scattered
-/// exitance M̂_ms(k) (single scattering is integrated exactly elsewhere).
-/// Below NEAR_DEPTH the source is B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² +
-/// k²) with p0 = [`asymptotic_decay`] of `alpha`, B continuous with the
-/// last cell.
-fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
+/// The source C(z) at frequency k: its value in each cell of
+/// [`depth_cells`], then the amplitude B of the deep field below
+/// NEAR_DEPTH, B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² + k²) with p0 =
+/// [`asymptotic_decay`] of `alpha`, B continuous with the last cell.
+fn solve_source(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> Vec<f64> {
     let edges = depth_cells();
     let n = edges.len() - 1;
     let m = n + 1; // cells + the tail's amplitude
@@ -303,14 +302,32 @@ fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
     // B = C(z) continued from the last cell's midpoint.
     a[n * m + n] = 1.0;
     a[n * m + n - 1] = -(-kappa * (NEAR_DEPTH - mid[n - 1])).exp();
-    let mut source: Vec<f64> = mid.iter().map(|&z| alpha * (-z).exp()).collect();
-    source.push(0.0);
-    let c = solve_dense(&mut a, source.clone(), m);
-    let exit: Vec<f64> = edges
+    let mut source: Vec<f64> = edges
         .windows(2)
-        .map(|w| prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0]))
+        .map(|w| first_collisions(alpha, w[0], w[1]))
         .collect();
-    (0..n).map(|j| (c[j] - source[j]) * exit[j]).sum()
+    source.push(0.0);
+    solve_dense(&mut a, source, m)
+}
+
+/// The first-collision source a' e^{-z} at a cell's midpoint: what
+/// [`solve_source`] less this leaves is the multiply scattered part.
+fn first_collisions(alpha: f64, lo: f64, hi: f64) -> f64 {
+    alpha * (-0.5 * (lo + hi)).exp()
+}
+
+/// The multiply scattered exitance M̂_ms(k) at frequency k (single
+/// scattering is integrated exactly elsewhere).
+fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
+    let c = solve_source(alpha, p0, k, prim);
+    depth_cells()
+        .windows(2)
+        .zip(&c)
+        .map(|(w, &cj)| {
+            let exit = prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0]);
+            (cj - first_collisions(alpha, w[0], w[1])) * exit
+        })
+        .sum()
 }
 
 /// Gaussian elimination with partial pivoting (row-major `a`, n x n).
@@ -473,6 +490,24 @@ impl HalfSpace {
         Ok(1.0 - s * s)
     }
 
+    /// The radiance under the boundary of all the light a normal beam
+    /// sends back (k = 0), by the direction it meets the boundary in.
+    pub fn emergent(&self, alpha: f64) -> Emergent {
+        let c = solve_source(alpha, asymptotic_decay(alpha), 0.0, &self.prims[0]);
+        let edges = depth_cells();
+        let multiple = edges
+            .windows(2)
+            .zip(&c)
+            .map(|(w, &cj)| cj - first_collisions(alpha, w[0], w[1]))
+            .collect();
+        Emergent {
+            eta: self.eta,
+            alpha,
+            edges,
+            multiple,
+        }
+    }
+
     /// The line profile g(x) of reduced albedo `alpha` (exitance per entered
     /// flux per mfp of line, s'_t = 1) at the distances `xs` (mfp).
     pub fn line_profile(&self, alpha: f64, xs: &[f64]) -> Vec<f64> {
@@ -510,6 +545,53 @@ impl HalfSpace {
         }
         let f = u - i as f64;
         (self.single[i] * (1.0 - f) + self.single[i + 1] * f).exp()
+    }
+}
+
+/// The angular distribution of the reflected light under the boundary, from
+/// the k = 0 source: L(μ) = (1/4π μ) ∫ C(z) e^{-z/μ} dz, with single
+/// scattering exact and the multiply scattered source constant on each
+/// cell (the deep field's share is below e^{-NEAR_DEPTH}).
+pub struct Emergent {
+    eta: f64,
+    alpha: f64,
+    edges: Vec<f64>,
+    multiple: Vec<f64>,
+}
+
+impl Emergent {
+    /// Radiance per entered flux, moving up at direction cosine `mu` inside.
+    pub fn internal_radiance(&self, mu: f64) -> f64 {
+        let mu = mu.clamp(1e-9, 1.0);
+        let cells: f64 = self
+            .edges
+            .windows(2)
+            .zip(&self.multiple)
+            .map(|(w, &c)| c * ((-w[0] / mu).exp() - (-w[1] / mu).exp()))
+            .sum();
+        (cells + self.alpha / (1.0 + mu)) / (4.0 * PI)
+    }
+
+    /// The exitance, 2π ∫ (1 - F(μ)) L(μ) μ dμ: the total reflectance.
+    pub fn exitance(&self) -> f64 {
+        let an = Angles::new(self.eta);
+        (0..an.mu.len())
+            .map(|q| {
+                let mu = an.mu[q];
+                2.0 * PI * an.weight[q] * (1.0 - an.fresnel[q]) * self.internal_radiance(mu) * mu
+            })
+            .sum()
+    }
+
+    /// Exitance per unit radiance seen outside at `cos_view`: what turns a
+    /// camera's radiance into exitance. Refraction maps the view to μ inside,
+    /// and radiance across the boundary is (1 - F) L / eta².
+    pub fn exitance_per_radiance(&self, cos_view: f64) -> f64 {
+        let cos_view = cos_view.clamp(0.0, 1.0);
+        let mu = (1.0 - (1.0 - cos_view * cos_view) / (self.eta * self.eta)).sqrt();
+        let seen = (1.0 - fresnel_dielectric(mu, 1.0 / self.eta)) * self.internal_radiance(mu)
+            / (self.eta * self.eta);
+        self.exitance() / seen
     }
 }
 
@@ -766,9 +848,9 @@ mod tests {
         }
     }
 
-    /// Chandrasekhar's H-function of isotropic scattering at μ = 1, from
+    /// Chandrasekhar's H-function of isotropic scattering, from
     /// 1/H(μ) = sqrt(1 - a) + (a/2) ∫ μ' H(μ') / (μ + μ') dμ', iterated.
-    fn chandrasekhar_h1(a: f64) -> f64 {
+    fn chandrasekhar_h(a: f64) -> impl Fn(f64) -> f64 {
         let n = 400;
         let mu: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
         let mut h = vec![1.0; n];
@@ -782,8 +864,10 @@ mod tests {
                 .collect();
             h = next;
         }
-        let s: f64 = mu.iter().zip(&h).map(|(&q, &hq)| q * hq / (1.0 + q)).sum();
-        1.0 / ((1.0 - a).sqrt() + 0.5 * a * s / n as f64)
+        move |m: f64| {
+            let s: f64 = mu.iter().zip(&h).map(|(&q, &hq)| q * hq / (m + q)).sum();
+            1.0 / ((1.0 - a).sqrt() + 0.5 * a * s / n as f64)
+        }
     }
 
     #[test]
@@ -791,10 +875,46 @@ mod tests {
         // Normal incidence on an index-matched half-space: R = 1 - H(1) sqrt(1 - a).
         let hs = HalfSpace::new(1.0);
         for a in [0.3, 0.7, 0.9, 0.99, 0.999] {
-            let exact = 1.0 - chandrasekhar_h1(a) * (1.0f64 - a).sqrt();
+            let exact = 1.0 - chandrasekhar_h(a)(1.0) * (1.0f64 - a).sqrt();
             let r = hs.total_reflectance(a);
             eprintln!("a {a}: R {r:.6} exact {exact:.6}");
             assert!((r - exact).abs() < 5e-4, "a {a}: R {r} vs {exact}");
+        }
+    }
+
+    #[test]
+    fn index_matched_emergent_radiance_is_chandrasekhars() {
+        // Diffuse reflection of a normal beam, index-matched: the emergent
+        // radiance goes as H(μ)/(1 + μ), and its exitance is R.
+        let hs = HalfSpace::new(1.0);
+        for a in [0.5, 0.9, 0.99] {
+            let e = hs.emergent(a);
+            let r = hs.total_reflectance(a);
+            assert!((e.exitance() / r - 1.0).abs() < 1e-3, "a {a}: {} vs {r}", e.exitance());
+            let h = chandrasekhar_h(a);
+            for mu in [0.1, 0.3, 0.6] {
+                let exact = h(mu) / (1.0 + mu) / (h(1.0) / 2.0);
+                let got = e.internal_radiance(mu) / e.internal_radiance(1.0);
+                assert!((got / exact - 1.0).abs() < 2e-3, "a {a} μ {mu}: {got} vs {exact}");
+            }
+        }
+    }
+
+    #[test]
+    fn diffuse_light_leaves_as_fresnel_predicts() {
+        // At a' = 1 the light under the boundary is nearly isotropic, so the
+        // conversion is close to the diffuse-Fresnel one; at lower albedo
+        // less leaves along the normal, more per radiance seen there.
+        for eta in [1.3, 1.5] {
+            let hs = HalfSpace::shared(eta);
+            let fa = crate::dipole::fresnel_hemispherical_average(eta);
+            for cos in [1.0, 0.62] {
+                let iso = crate::dipole::exitance_per_radiance(cos, eta, fa);
+                let white = hs.emergent(1.0).exitance_per_radiance(cos);
+                assert!((white / iso - 1.0).abs() < 0.01, "eta {eta}: {white} vs {iso}");
+                let grey = hs.emergent(0.8).exitance_per_radiance(1.0);
+                assert!(grey > 1.02 * white, "eta {eta}: {grey} vs {white}");
+            }
         }
     }
 
