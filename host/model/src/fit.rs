@@ -185,6 +185,15 @@ impl DistanceBins {
             self.count[b] += 1;
         }
     }
+    /// Adds a texel unless its bin starts below `from`: a bin a view covers
+    /// only in part would average its outer texels alone, biased low next
+    /// to the stripe where the profile falls steeply (with the specular
+    /// view's core skipped, R came out 1.3 % low and s'_t 6 % low).
+    fn add_from(&mut self, from: f64, d: f64, value: f64) {
+        if (d / self.width).floor() * self.width >= from {
+            self.add(d, value);
+        }
+    }
     /// The same bins with every value times `k`.
     fn scaled(&self, k: f64) -> Self {
         DistanceBins {
@@ -320,9 +329,9 @@ pub fn fit_capture(
                     for i in 0..w {
                         let l = img.get(i, j)[c as usize] as f64;
                         let d = s.distance(grid.centre(i, j));
-                        if l.is_finite() && d >= skip {
-                            fine.add(d, k * l);
-                            coarse.add(d, k * l);
+                        if l.is_finite() {
+                            fine.add_from(skip, d, k * l);
+                            coarse.add_from(skip, d, k * l);
                         }
                     }
                 }
