@@ -39,21 +39,9 @@ fn ci_demo_recovers_the_homogeneous_sample() {
     let model = reload_model(&out).unwrap();
     assert_eq!(model.dipole, summary.recovered);
 
-    // Issue 5's targets: a' within 0.002, s'_t within 5 %. Measured at this
-    // seed (transport fit): a' -0.0001, -0.0000, +0.0000; s'_t -0.9, +0.1,
-    // -1.0 % (seeds 1 to 4: within 5.1 %, README "Status").
-    for c in 0..3 {
-        let (a, a_true) = (summary.recovered.alpha_prime[c], truth.alpha_prime[c]);
-        let (s, s_true) = (summary.recovered.sigma_t_prime[c], truth.sigma_t_prime[c]);
-        assert!(
-            (a - a_true).abs() < 0.002,
-            "channel {c}: a' {a} vs true {a_true}"
-        );
-        assert!(
-            (s - s_true).abs() / s_true < 0.05,
-            "channel {c}: s'_t {s} vs true {s_true}"
-        );
-    }
+    // Issue 5's targets. Measured at this seed: a' -0.0001, +0.0000,
+    // +0.0001; s'_t -0.7, +0.3, -0.7 % (seeds 1 to 4: within 4.5 %).
+    assert_meets_issue_5(sample, &summary.recovered, &truth);
     // The polished top is a flat, smooth surface: f(w_i) is the Fresnel
     // ratio T(theta_i)/T(0) within 3 % (measured: 1.3 % at most).
     let diagnostics = model
@@ -84,4 +72,48 @@ fn ci_demo_recovers_the_homogeneous_sample() {
     // A second run into the same, now non-empty, directory is refused.
     let err = run(&opts).unwrap_err();
     assert!(format!("{err:#}").contains("--force"), "{err:#}");
+}
+
+/// Issue 5's targets: a' within 0.002 absolute and s'_t within 5 %.
+fn assert_meets_issue_5(
+    sample: &str,
+    recovered: &qhm_model::DipoleParams,
+    truth: &host::demo::Reference,
+) {
+    for c in 0..3 {
+        let (a, a_true) = (recovered.alpha_prime[c], truth.alpha_prime[c]);
+        let (s, s_true) = (recovered.sigma_t_prime[c], truth.sigma_t_prime[c]);
+        assert!(
+            (a - a_true).abs() < 0.002,
+            "{sample} channel {c}: a' {a} vs true {a_true}"
+        );
+        assert!(
+            (s - s_true).abs() / s_true < 0.05,
+            "{sample} channel {c}: s'_t {s} vs true {s_true}"
+        );
+    }
+}
+
+/// The same targets on a milk (a' up to 0.9996, light spreading over
+/// centimetres) and on skin (a' down to 0.92, most light near the line).
+/// Measured (seed 1): whole milk a' within 0.0002, s'_t -2.7, -0.3, -1.8 %;
+/// skin2 a' within 0.0011, s'_t -0.3, -1.7, +0.4 %. Other seeds and
+/// presets: README "Status".
+#[test]
+fn ci_demo_recovers_milk_and_skin() {
+    for sample in ["whole-milk", "skin2"] {
+        let tmp = tempfile::tempdir().unwrap();
+        let opts = DemoOptions {
+            sample: sample.into(),
+            scale: Scale::Ci,
+            out: tmp.path().join("demo"),
+            force: false,
+            seed: 1,
+            quiet: true,
+            skip_renders: true,
+        };
+        let summary = run(&opts).expect("the ci demo runs");
+        let truth = reference(sample).expect("homogeneous presets have a truth");
+        assert_meets_issue_5(sample, &summary.recovered, &truth);
+    }
 }
