@@ -365,9 +365,8 @@ pub fn fit_capture(
             (Profile::new(fine.points(), grid.texel_mm), coarse.means())
         };
         // Until a' is known, the light under the boundary is taken as isotropic.
-        let (mut profile, mut means) = exitance(
-            &ProfileModel::Dipole.exitance_per_radiance(1.0, opts.eta, &cos_views),
-        );
+        let (mut profile, mut means) =
+            exitance(&ProfileModel::Dipole.exitance_per_radiance(1.0, opts.eta, &cos_views));
         if profile.distance_mm.len() < 5 {
             return Err(ModelError::Fit(format!(
                 "channel {c}: only {} distance bins have valid texels",
@@ -393,7 +392,9 @@ pub fn fit_capture(
             range = Some((f.range_mm[0], f.range_mm[1]));
             let auto = fit
                 .as_ref()
-                .map_or(f.auto_range, |x: &(f64, ProfileFit, Profile)| x.1.auto_range);
+                .map_or(f.auto_range, |x: &(f64, ProfileFit, Profile)| {
+                    x.1.auto_range
+                });
             let f = ProfileFit {
                 auto_range: auto,
                 ..f

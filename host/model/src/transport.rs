@@ -890,12 +890,19 @@ mod tests {
         for a in [0.5, 0.9, 0.99] {
             let e = hs.emergent(a);
             let r = hs.total_reflectance(a);
-            assert!((e.exitance() / r - 1.0).abs() < 1e-3, "a {a}: {} vs {r}", e.exitance());
+            assert!(
+                (e.exitance() / r - 1.0).abs() < 1e-3,
+                "a {a}: {} vs {r}",
+                e.exitance()
+            );
             let h = chandrasekhar_h(a);
             for mu in [0.1, 0.3, 0.6] {
                 let exact = h(mu) / (1.0 + mu) / (h(1.0) / 2.0);
                 let got = e.internal_radiance(mu) / e.internal_radiance(1.0);
-                assert!((got / exact - 1.0).abs() < 2e-3, "a {a} μ {mu}: {got} vs {exact}");
+                assert!(
+                    (got / exact - 1.0).abs() < 2e-3,
+                    "a {a} μ {mu}: {got} vs {exact}"
+                );
             }
         }
     }
@@ -911,7 +918,10 @@ mod tests {
             for cos in [1.0, 0.62] {
                 let iso = crate::dipole::exitance_per_radiance(cos, eta, fa);
                 let white = hs.emergent(1.0).exitance_per_radiance(cos);
-                assert!((white / iso - 1.0).abs() < 0.01, "eta {eta}: {white} vs {iso}");
+                assert!(
+                    (white / iso - 1.0).abs() < 0.01,
+                    "eta {eta}: {white} vs {iso}"
+                );
                 let grey = hs.emergent(0.8).exitance_per_radiance(1.0);
                 assert!(grey > 1.02 * white, "eta {eta}: {grey} vs {white}");
             }
