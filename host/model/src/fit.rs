@@ -9,7 +9,7 @@
 //!    π L: isotropic for the dipole, exact for transport (at a' 0.8 the
 //!    isotropic guess puts R 3 % low and a' 0.007 low).
 //! 2. R = 2 ∫ I(d) dd: near-field bins the capture lacks (masked as NaN) are
-//!    filled from the dipole by iterating R -> a' -> s'_t; beyond the data the
+//!    filled from the model by iterating R -> a' -> s'_t; beyond the data the
 //!    measured tail is continued at its own exponential decay.
 //! 3. a' by inverting R = T(0) R_total (T(0) = 1 - F(0): the share of the
 //!    stripe that enters), s'_t by the profile fit ([`crate::profile`]).
