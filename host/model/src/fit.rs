@@ -415,7 +415,8 @@ pub fn fit_capture(
             means = converted.1;
             let next = reflectance_from_profile(&means, grid.texel_mm, Some(&dp));
             stripes[c as usize] = Some(dp);
-            if (next - r).abs() < 1e-9 * r {
+            // 1e-6 of R moves a' and s'_t by less than 1e-5 of themselves.
+            if (next - r).abs() < 1e-6 * r {
                 break;
             }
             r = next;
