@@ -316,17 +316,23 @@ fn first_collisions(alpha: f64, lo: f64, hi: f64) -> f64 {
     alpha * (-0.5 * (lo + hi)).exp()
 }
 
-/// The multiply scattered exitance M̂_ms(k) at frequency k (single
-/// scattering is integrated exactly elsewhere).
-fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
+/// The multiply scattered part of [`solve_source`] on each cell.
+fn multiple_source(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> Vec<f64> {
     let c = solve_source(alpha, p0, k, prim);
     depth_cells()
         .windows(2)
         .zip(&c)
-        .map(|(w, &cj)| {
-            let exit = prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0]);
-            (cj - first_collisions(alpha, w[0], w[1])) * exit
-        })
+        .map(|(w, &cj)| cj - first_collisions(alpha, w[0], w[1]))
+        .collect()
+}
+
+/// The multiply scattered exitance M̂_ms(k) at frequency k (single
+/// scattering is integrated exactly elsewhere).
+fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
+    depth_cells()
+        .windows(2)
+        .zip(multiple_source(alpha, p0, k, prim))
+        .map(|(w, c)| c * (prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0])))
         .sum()
 }
 
@@ -493,18 +499,11 @@ impl HalfSpace {
     /// The radiance under the boundary of all the light a normal beam
     /// sends back (k = 0), by the direction it meets the boundary in.
     pub fn emergent(&self, alpha: f64) -> Emergent {
-        let c = solve_source(alpha, asymptotic_decay(alpha), 0.0, &self.prims[0]);
-        let edges = depth_cells();
-        let multiple = edges
-            .windows(2)
-            .zip(&c)
-            .map(|(w, &cj)| cj - first_collisions(alpha, w[0], w[1]))
-            .collect();
         Emergent {
             eta: self.eta,
             alpha,
-            edges,
-            multiple,
+            edges: depth_cells(),
+            multiple: multiple_source(alpha, asymptotic_decay(alpha), 0.0, &self.prims[0]),
         }
     }
 
