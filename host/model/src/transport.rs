@@ -499,12 +499,25 @@ impl HalfSpace {
     /// The radiance under the boundary of all the light a normal beam
     /// sends back (k = 0), by the direction it meets the boundary in.
     pub fn emergent(&self, alpha: f64) -> Emergent {
-        Emergent {
+        let mut emergent = Emergent {
             eta: self.eta,
             alpha,
             edges: depth_cells(),
             multiple: multiple_source(alpha, asymptotic_decay(alpha), 0.0, &self.prims[0]),
-        }
+            exitance: 0.0,
+        };
+        let an = &self.angles;
+        emergent.exitance = (0..an.mu.len())
+            .map(|q| {
+                let mu = an.mu[q];
+                2.0 * PI
+                    * an.weight[q]
+                    * (1.0 - an.fresnel[q])
+                    * emergent.internal_radiance(mu)
+                    * mu
+            })
+            .sum();
+        emergent
     }
 
     /// The line profile g(x) of reduced albedo `alpha` (exitance per entered
@@ -556,6 +569,8 @@ pub struct Emergent {
     alpha: f64,
     edges: Vec<f64>,
     multiple: Vec<f64>,
+    /// 2π ∫ (1 - F(μ)) L(μ) μ dμ on the solver's angles: the total reflectance.
+    exitance: f64,
 }
 
 impl Emergent {
@@ -573,13 +588,7 @@ impl Emergent {
 
     /// The exitance, 2π ∫ (1 - F(μ)) L(μ) μ dμ: the total reflectance.
     pub fn exitance(&self) -> f64 {
-        let an = Angles::new(self.eta);
-        (0..an.mu.len())
-            .map(|q| {
-                let mu = an.mu[q];
-                2.0 * PI * an.weight[q] * (1.0 - an.fresnel[q]) * self.internal_radiance(mu) * mu
-            })
-            .sum()
+        self.exitance
     }
 
     /// Exitance per unit radiance seen outside at `cos_view`: what turns a
@@ -590,7 +599,7 @@ impl Emergent {
         let mu = (1.0 - (1.0 - cos_view * cos_view) / (self.eta * self.eta)).sqrt();
         let seen = (1.0 - fresnel_dielectric(mu, 1.0 / self.eta)) * self.internal_radiance(mu)
             / (self.eta * self.eta);
-        self.exitance() / seen
+        self.exitance / seen
     }
 }
 
