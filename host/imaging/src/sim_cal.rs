@@ -16,7 +16,7 @@ use crate::hdr::{self, MergeOptions};
 use crate::image::{Image8, ImageF};
 use crate::photometric;
 use crate::rectify::{self, Grid};
-use crate::response::{self, Bracket, FitRange, MnOptions};
+use crate::response::{self, Bracket, FitRange, MnOptions, ResponseCurve};
 use crate::zhang::{self, PlanarView, Raised, ZhangOptions};
 use crate::{Error, Result};
 
@@ -75,6 +75,12 @@ const GEOMETRY_PHOTONS: u64 = 400_000;
 /// patch means of two cameras share photons only where their pixels cover
 /// the same texels, so at 40 k (ci) the gains were off by up to 4 %.
 const COLOUR_PHOTONS: u64 = 1_000_000;
+
+/// Where the response rows compare fitted and true curves (codes).
+const RESPONSE_CHECKED: FitRange = FitRange {
+    z_min: 20,
+    z_max: 245,
+};
 
 /// Thickness of the spacer block the checkerboard is also imaged on, mm: the
 /// image scale's change with this known depth change separates focal length
@@ -226,27 +232,10 @@ impl SimCalibrator {
             let mut worst = 0.0f64;
             for c in 0..3 {
                 let fit = response::fit_mitsunaga_nayar(&b, c, mn_options())?;
-                let truth = self.rig.cameras[k].response.clone();
-                // The true inverse response: m with I(m) = Z / 255, by bisection.
-                let inv = |z: f64| {
-                    let (mut lo, mut hi) = (0.0, 1.0);
-                    for _ in 0..60 {
-                        let mid = 0.5 * (lo + hi);
-                        if truth.eval(mid) * 255.0 < z {
-                            lo = mid
-                        } else {
-                            hi = mid
-                        }
-                    }
-                    0.5 * (lo + hi)
-                };
                 let e = response::relative_error(
                     &|z| fit.curve.linear(z),
-                    &inv,
-                    FitRange {
-                        z_min: 20,
-                        z_max: 245,
-                    },
+                    &|z| self.true_linear(k, z),
+                    RESPONSE_CHECKED,
                 );
                 worst = worst.max(e);
                 curves.push(fit.curve);
@@ -298,7 +287,8 @@ impl SimCalibrator {
     /// patch's central half is 4 x 4 pixels, and the patch edges blur into
     /// it) and with at least `COLOUR_PHOTONS` per channel. Colour gains are
     /// ratios of linear values, so they hold at any binning (ci, seeds 1-4:
-    /// the worst camera 2.0, 4.2, 1.9, 3.4 % -> 0.6, 2.0, 1.9, 2.6 %).
+    /// the worst camera 2.0, 4.2, 1.9, 3.4 % -> 0.6, 2.0, 1.9, 2.6 %, both
+    /// against the bare gain ratio, which leaves out the response scales).
     fn colour_quality(&self) -> SimQuality {
         let mut q = self.quality;
         q.downscale = q.downscale.min(2);
@@ -681,8 +671,10 @@ impl SimCalibrator {
         for (&k, g) in measured.iter().zip(&gains) {
             let mut worst = 0.0f64;
             for c in 0..3 {
-                let truth =
-                    self.rig.cameras[kref].colour_gain[c] / self.rig.cameras[k].colour_gain[c];
+                let truth = self.rig.cameras[kref].colour_gain[c]
+                    / self.rig.cameras[k].colour_gain[c]
+                    * self.response_scale(cal, kref, c)
+                    / self.response_scale(cal, k, c);
                 worst = worst.max((g[c] / truth - 1.0).abs());
             }
             rows.push(Row {
@@ -698,11 +690,50 @@ impl SimCalibrator {
         Ok(())
     }
 
-    /// Radiance in camera units (reference camera) per W sr^-1 m^-2 of true radiance, channel c.
+    /// Radiance in camera units (reference camera, true response) per
+    /// W sr^-1 m^-2 of true radiance, channel c.
     fn camera_unit(&self, c: usize) -> f64 {
         let kref = *self.cameras.last().unwrap_or(&7);
         self.rig.cameras[kref].colour_gain[c] * sim_light::sensor::SENSITIVITY
             / sim_light::sensor::FULL_WELL_E
+    }
+
+    /// Camera k's true inverse response: m with I(m) = z / 255, by bisection.
+    fn true_linear(&self, k: usize, z: f64) -> f64 {
+        let truth = &self.rig.cameras[k].response;
+        let (mut lo, mut hi) = (0.0, 1.0);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if truth.eval(mid) * 255.0 < z {
+                lo = mid
+            } else {
+                hi = mid
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    /// The scale of camera k's calibrated response for channel c against
+    /// the true one (geometric mean of their ratio where it is checked).
+    /// The response row leaves it out; the colour gains take it up (camera
+    /// k's scale against the reference's), and the lamp and laser values
+    /// are in the reference camera's calibrated units.
+    fn response_scale(&self, cal: &Calibration, k: usize, c: usize) -> f64 {
+        let Some(curve) = cal.camera(k).and_then(|cam| cam.response.get(c)) else {
+            return 1.0;
+        };
+        let zs = RESPONSE_CHECKED.z_min..=RESPONSE_CHECKED.z_max;
+        let n = zs.clone().count() as f64;
+        (zs.map(|z| (curve.linear(z as f64) / self.true_linear(k, z as f64)).ln())
+            .sum::<f64>()
+            / n)
+            .exp()
+    }
+
+    /// `camera_unit` in the reference camera's calibrated units.
+    fn calibrated_unit(&self, cal: &Calibration, c: usize) -> f64 {
+        let kref = *self.cameras.last().unwrap_or(&7);
+        self.camera_unit(c) * self.response_scale(cal, kref, c)
     }
 
     /// Lamp irradiance from the reference white (directions: nominal, see docs).
@@ -751,7 +782,7 @@ impl SimCalibrator {
             let e = photometric::lamp_irradiance(l, rho, dir.z)?;
             let mut worst = 0.0f64;
             for c in 0..3 {
-                let truth = self.rig.lamps[li].irradiance[c] * self.camera_unit(c);
+                let truth = self.rig.lamps[li].irradiance[c] * self.calibrated_unit(cal, c);
                 worst = worst.max((e[c] / truth - 1.0).abs());
             }
             rows.push(Row {
@@ -890,7 +921,7 @@ impl SimCalibrator {
             flux[c] =
                 photometric::laser_flux_per_mm(&vals, grid.texel_mm * grid.texel_mm, rho, window)?;
             let truth = self.rig.laser.power_w[c] / self.rig.laser.stripe_length
-                * self.camera_unit(c)
+                * self.calibrated_unit(cal, c)
                 * 1e6;
             let err = (flux[c] / truth - 1.0).abs();
             rows.push(Row {
@@ -907,6 +938,71 @@ impl SimCalibrator {
             flux_per_mm: Some(flux),
         });
         Ok(())
+    }
+
+    /// The calibration the simulated rig truly has, in the units the steps
+    /// use: a response table from the true curve, the true geometry, colour
+    /// gains, lamps and laser. A fit from frames rectified with it has no
+    /// calibration error, which separates the fit's errors from the steps'.
+    pub fn truth(&self, cal: &mut Calibration) {
+        let g = hardware::NOMINAL_GEOMETRY;
+        let b = self.binning() as f64;
+        for &k in &self.cameras {
+            let truth = &self.rig.cameras[k];
+            // linear(Z) = m with I(m) = Z / 255 (m = 1 at saturation, as the
+            // fitted curves). Z = 0 reads as black, as the fitted curves read
+            // it: a quarter code there lifted the dark far field of a stripe
+            // image enough to move skin1's blue a' by +0.016.
+            let table = ResponseCurve::Table {
+                g: (0..256)
+                    .map(|z| {
+                        if z == 0 {
+                            1e-12
+                        } else {
+                            self.true_linear(k, z as f64)
+                        }
+                        .ln()
+                    })
+                    .collect(),
+            };
+            let kref = *self.cameras.last().unwrap_or(&7);
+            let cam = cal.camera_mut(k);
+            cam.response = vec![table; 3];
+            cam.colour_gain = Some(std::array::from_fn(|c| {
+                self.rig.cameras[kref].colour_gain[c] / truth.colour_gain[c]
+            }));
+            cam.geometry = Some(full_res(&self.true_camera(k), b));
+            cam.reprojection_rms_px = Some(0.0);
+        }
+        cal.turntable = Some(Turntable {
+            axis: self.rig.turntable_axis,
+        });
+        cal.lamp = (g.lamps.iter().enumerate())
+            .filter(|(_, l)| l.used)
+            .map(|(li, _)| LampCal {
+                index: li,
+                direction: self.rig.lamps[li].direction,
+                irradiance: Some(std::array::from_fn(|c| {
+                    self.rig.lamps[li].irradiance[c] * self.camera_unit(c)
+                })),
+            })
+            .collect();
+        let az = g.light_arc_azimuth0 + LASER_ARC;
+        let plane_angles = (g.laser.positions.iter())
+            .map(|&elev| {
+                let geo = self.rig.laser_geometry(elev, LASER_ARC, 0.0);
+                let horiz = (geo.origin - geo.centre)
+                    .truncate()
+                    .dot(DVec2::new(az.cos(), az.sin()));
+                [elev, (geo.origin.z - geo.centre.z).atan2(horiz)]
+            })
+            .collect();
+        cal.laser = Some(LaserCal {
+            plane_angles,
+            flux_per_mm: Some(std::array::from_fn(|c| {
+                self.rig.laser.power_w[c] / self.rig.laser.stripe_length * self.camera_unit(c) * 1e6
+            })),
+        });
     }
 }
 
@@ -941,4 +1037,63 @@ pub fn full_res(m: &CameraModel, b: f64) -> CameraModel {
     k.cx = (k.cx + 0.5) * b - 0.5;
     k.cy = (k.cy + 0.5) * b - 0.5;
     c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sim_light::RadianceImage;
+    use sim_light::sensor::Sensor;
+
+    /// Frames of a flat radiance merged through the true calibration read
+    /// back that radiance in the reference camera's units, on every camera.
+    #[test]
+    fn true_calibration_reads_back_the_rig() {
+        let sim = SimCalibrator::new(3, SimQuality::ci());
+        let mut cal = Calibration::default();
+        sim.truth(&mut cal);
+        let cal = Calibration::from_toml(&toml::to_string(&cal).unwrap()).unwrap();
+        let radiance = [0.8f32, 0.5, 0.3];
+        let exposures = [0.002, 0.005, 0.0125, 0.03];
+        for k in 1..8 {
+            let truth = &sim.rig.cameras[k];
+            let sensor = Sensor {
+                camera: k,
+                colour_gain: truth.colour_gain,
+                response: truth.response.clone(),
+            };
+            let flat = RadianceImage {
+                width: 32,
+                height: 32,
+                data: vec![radiance; 32 * 32],
+            };
+            let frames: Vec<Image8> = (exposures.iter().enumerate())
+                .map(|(i, &t)| {
+                    let f = sensor.expose(&flat, t, SENSOR_GAIN, i as u64);
+                    Image8::new(32, 32, 3, f.rgb).unwrap()
+                })
+                .collect();
+            let refs: Vec<&Image8> = frames.iter().collect();
+            let cam = cal.camera(k).unwrap();
+            let hdr =
+                hdr::merge(&refs, &exposures, &cam.response, MergeOptions::default()).unwrap();
+            for c in 0..3 {
+                let mean = hdr
+                    .data
+                    .iter()
+                    .skip(c)
+                    .step_by(3)
+                    .map(|&v| v as f64)
+                    .sum::<f64>()
+                    / (32.0 * 32.0);
+                let got = mean * cam.colour_gain.unwrap()[c];
+                let want = radiance[c] as f64 * sim.camera_unit(c);
+                assert!(
+                    (got / want - 1.0).abs() < 0.01,
+                    "camera {k} channel {c}: {got} vs {want}"
+                );
+                assert!((sim.response_scale(&cal, k, c) - 1.0).abs() < 1e-9);
+            }
+        }
+    }
 }
