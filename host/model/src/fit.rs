@@ -87,10 +87,19 @@ const SAME_DIR: f64 = 1e-3;
 /// The group key of every near-vertical light (`dir_key` of the normal).
 const VERTICAL_KEY: [i64; 3] = [0, 0, (1.0 / SAME_DIR) as i64];
 
-/// Views within 10 degrees of the laser's mirror direction see its
+/// Views within 20 degrees of the vertical laser's mirror direction see its
 /// specular reflection on the stripe's core, which is surface, not
-/// subsurface, light.
-const SPECULAR_VIEW_COS: f64 = 0.984_807_753_012_208;
+/// subsurface, light. The polished presets' glint (GGX alpha 0.02) put
+/// 10 % into a 13-degree view's R of skin1 blue (default scale), nothing
+/// measurable into a 26-degree view's.
+const SPECULAR_CORE_COS: f64 = 0.939_692_620_785_908_4;
+
+/// Views within 30 degrees of a stripe's mirror direction are left out of
+/// the entrance function: an oblique laser's glint is stronger (Fresnel
+/// reflectance at 60 degrees is 3.5 times the normal one, and the BRDF
+/// grows as 1 / cos theta_i); whole milk's worst f(w_i) at the default
+/// scale went from 3.6 to 2.2 %.
+const SPECULAR_ENTRANCE_COS: f64 = 0.866_025_403_784_438_6;
 
 /// The stripe's core: the laser line blurred by a camera pixel and the
 /// rectification's interpolation, a texel and a half either side.
@@ -98,10 +107,10 @@ fn core_mm(grid: &crate::rectified::Grid) -> f64 {
     1.5 * grid.texel_mm
 }
 
-/// Whether `s`'s view sees the laser's specular reflection.
-fn sees_specular(s: &StripeEntry) -> bool {
+/// Cosine between `s`'s view and the laser's mirror direction.
+fn cos_to_mirror(s: &StripeEntry) -> f64 {
     let (l, v) = (s.light_dir, s.view_dir);
-    -l[0] * v[0] - l[1] * v[1] + l[2] * v[2] > SPECULAR_VIEW_COS
+    -l[0] * v[0] - l[1] * v[1] + l[2] * v[2]
 }
 
 fn dir_key(v: [f64; 3]) -> [i64; 3] {
@@ -318,7 +327,7 @@ pub fn fit_capture(
             .map(|s| -> Result<_, ModelError> {
                 let img = data.read_image(&s.file)?;
                 let k = 1.0 / s.flux_per_mm;
-                let skip = if sees_specular(s) {
+                let skip = if cos_to_mirror(s) > SPECULAR_CORE_COS {
                     core_mm(&grid)
                 } else {
                     0.0
@@ -633,7 +642,9 @@ fn fit_entrance(
         .index
         .stripe
         .iter()
-        .filter(|s| (s.pass == 1 || is_vertical(s.light_dir)) && !sees_specular(s))
+        .filter(|s| {
+            (s.pass == 1 || is_vertical(s.light_dir)) && cos_to_mirror(s) <= SPECULAR_ENTRANCE_COS
+        })
         .collect();
     if used.is_empty() {
         return Err(ModelError::Fit(
