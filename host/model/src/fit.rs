@@ -8,9 +8,11 @@
 //!    transmittance ([`ProfileModel::exitance_per_radiance`]), not Lambert's
 //!    π L: isotropic for the dipole, exact for transport (at a' 0.8 the
 //!    isotropic guess puts R 3 % low and a' 0.007 low).
-//! 2. R = 2 ∫ I(d) dd: near-field bins the capture lacks (masked as NaN) are
-//!    filled from the model by iterating R -> a' -> s'_t; beyond the data the
-//!    measured tail is continued at its own exponential decay.
+//! 2. R = 2 ∫ I(d) dd, per view that sees the stripe's whole core (far
+//!    enough from the laser's mirror direction), averaged over those views:
+//!    near-field bins the capture lacks (masked as NaN) are filled from the
+//!    model by iterating R -> a' -> s'_t; beyond the data the measured tail
+//!    is continued at its own exponential decay.
 //! 3. a' by inverting R = T(0) R_total (T(0) = 1 - F(0): the share of the
 //!    stripe that enters), s'_t by the profile fit ([`crate::profile`]).
 //! 4. f(w_i) from pass-1 band fluxes over views, relative to the vertical.
@@ -87,19 +89,16 @@ const SAME_DIR: f64 = 1e-3;
 /// The group key of every near-vertical light (`dir_key` of the normal).
 const VERTICAL_KEY: [i64; 3] = [0, 0, (1.0 / SAME_DIR) as i64];
 
-/// Views within 20 degrees of the vertical laser's mirror direction see its
-/// specular reflection on the stripe's core, which is surface, not
-/// subsurface, light. The polished presets' glint (GGX alpha 0.02) put
-/// 10 % into a 13-degree view's R of skin1 blue (default scale), nothing
-/// measurable into a 26-degree view's.
-const SPECULAR_CORE_COS: f64 = 0.939_692_620_785_908_4;
-
-/// Views within 30 degrees of a stripe's mirror direction are left out of
-/// the entrance function: an oblique laser's glint is stronger (Fresnel
-/// reflectance at 60 degrees is 3.5 times the normal one, and the BRDF
-/// grows as 1 / cos theta_i); whole milk's worst f(w_i) at the default
-/// scale went from 3.6 to 2.2 %.
-const SPECULAR_ENTRANCE_COS: f64 = 0.866_025_403_784_438_6;
+/// Views within 30 degrees of a stripe's mirror direction see the laser's
+/// specular reflection on its core, which is surface, not subsurface,
+/// light: their core is left out of I(d), they do not count for R, and the
+/// entrance function leaves them out. The polished presets (GGX alpha 0.02)
+/// put 10 % into a 13-degree view's R of skin1 blue (default scale) and
+/// 1e-3 of R into a 26-degree view's at ci (green and blue alike, so a
+/// glint's, not the material's); an oblique laser's glint is stronger still
+/// (Fresnel 3.5 times at 60 degrees, BRDF over cos theta_i). With 30 degrees
+/// whole milk's worst f(w_i) at the default scale went from 3.6 to 2.2 %.
+const SPECULAR_VIEW_COS: f64 = 0.866_025_403_784_438_6;
 
 /// The stripe's core: the laser line blurred by a camera pixel and the
 /// rectification's interpolation, a texel and a half either side.
@@ -166,14 +165,23 @@ impl EnteringStripe {
     }
 }
 
+/// One view's pass-2 bins: fine ones for the profile, texel-wide ones for R.
+struct ViewBins {
+    cos: f64,
+    /// No image of this view left the stripe's core out.
+    whole_core: bool,
+    fine: DistanceBins,
+    coarse: DistanceBins,
+}
+
 /// Radiance summed by distance from a stripe's line in bins of `width` mm,
-/// with the summed distances (each bin's mean distance) and texel counts.
+/// with the summed distances (each bin's mean distance) and texel weights.
 #[derive(Clone)]
 struct DistanceBins {
     width: f64,
     sum: Vec<f64>,
     dsum: Vec<f64>,
-    count: Vec<u64>,
+    count: Vec<f64>,
 }
 
 impl DistanceBins {
@@ -183,24 +191,44 @@ impl DistanceBins {
             width,
             sum: vec![0.0; n],
             dsum: vec![0.0; n],
-            count: vec![0; n],
+            count: vec![0.0; n],
         }
     }
-    fn add(&mut self, d: f64, value: f64) {
-        let b = (d / self.width) as usize;
+    fn add_weighted(&mut self, b: usize, d: f64, value: f64, weight: f64) {
         if b < self.sum.len() {
-            self.sum[b] += value;
-            self.dsum[b] += d;
-            self.count[b] += 1;
+            self.sum[b] += weight * value;
+            self.dsum[b] += weight * d;
+            self.count[b] += weight;
         }
     }
-    /// Adds a texel unless its bin starts below `from`: a bin a view covers
-    /// only in part would average its outer texels alone, biased low next
-    /// to the stripe where the profile falls steeply (with the specular
-    /// view's core skipped, R came out 1.3 % low and s'_t 6 % low).
+    /// Adds a texel to its bin unless the bin starts below `from`: a bin a
+    /// view covers only in part would average its outer texels alone,
+    /// biased low next to the stripe where the profile falls steeply (with
+    /// the specular view's core skipped, R came out 1.3 % low and s'_t 6 %
+    /// low).
     fn add_from(&mut self, from: f64, d: f64, value: f64) {
         if (d / self.width).floor() * self.width >= from {
-            self.add(d, value);
+            self.add_weighted((d / self.width) as usize, d, value, 1.0);
+        }
+    }
+    /// Adds a texel to the two bins whose centres straddle its distance, in
+    /// proportion to its nearness to each (bin -1 is bin 0 mirrored across
+    /// the line), so that the bin means times the width sum to the texel
+    /// rows' sum across the line wherever the line falls on the texel grid.
+    /// Counted whole, a row on a bin edge went to either side on a rounding
+    /// of the fitted line: a narrow stripe's centroid lands on a texel
+    /// centre, its neighbours on the edges, and skin1's blue R moved 5 %
+    /// with a tenth of a code of dark offset. A bin counts only where every
+    /// texel it gathers lies at `from` or beyond.
+    fn add_spread(&mut self, from: f64, d: f64, value: f64) {
+        let u = d / self.width - 0.5;
+        let k0 = u.floor();
+        let frac = u - k0;
+        for (k, weight) in [(k0, 1.0 - frac), (k0 + 1.0, frac)] {
+            let k = if k < 0.0 { -k - 1.0 } else { k };
+            if from <= 0.0 || (k - 0.5) * self.width >= from {
+                self.add_weighted(k as usize, d, value, weight);
+            }
         }
     }
     /// The same bins with every value times `k`.
@@ -221,15 +249,17 @@ impl DistanceBins {
     /// Mean radiance per bin (None: no texel).
     fn means(&self) -> Vec<Option<f64>> {
         (0..self.sum.len())
-            .map(|b| (self.count[b] > 0).then(|| self.sum[b] / self.count[b] as f64))
+            .map(|b| (self.count[b] > 0.0).then(|| self.sum[b] / self.count[b]))
             .collect()
     }
     /// (mean distance, mean radiance) of the bins that hold texels.
     fn points(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
-        (0..self.sum.len()).filter(|&b| self.count[b] > 0).map(|b| {
-            let n = self.count[b] as f64;
-            (self.dsum[b] / n, self.sum[b] / n)
-        })
+        (0..self.sum.len())
+            .filter(|&b| self.count[b] > 0.0)
+            .map(|b| {
+                let n = self.count[b];
+                (self.dsum[b] / n, self.sum[b] / n)
+            })
     }
 }
 
@@ -327,7 +357,7 @@ pub fn fit_capture(
             .map(|s| -> Result<_, ModelError> {
                 let img = data.read_image(&s.file)?;
                 let k = 1.0 / s.flux_per_mm;
-                let skip = if cos_to_mirror(s) > SPECULAR_CORE_COS {
+                let skip = if cos_to_mirror(s) > SPECULAR_VIEW_COS {
                     core_mm(&grid)
                 } else {
                     0.0
@@ -340,38 +370,81 @@ pub fn fit_capture(
                         let d = s.distance(grid.centre(i, j));
                         if l.is_finite() {
                             fine.add_from(skip, d, k * l);
-                            coarse.add_from(skip, d, k * l);
+                            coarse.add_spread(skip, d, k * l);
                         }
                     }
                 }
-                Ok((dir_key(s.view_dir), s.view_dir[2], fine, coarse))
+                Ok((
+                    dir_key(s.view_dir),
+                    s.view_dir[2],
+                    skip == 0.0,
+                    fine,
+                    coarse,
+                ))
             })
             .collect::<Result<Vec<_>, _>>()?;
-        let mut views: BTreeMap<[i64; 3], (f64, DistanceBins, DistanceBins)> = BTreeMap::new();
-        for (key, cos, fine, coarse) in per_image {
+        let mut views: BTreeMap<[i64; 3], ViewBins> = BTreeMap::new();
+        for (key, cos, whole_core, fine, coarse) in per_image {
             let merged = match views.remove(&key) {
-                Some((_, f, co)) => (cos, f.merged(fine), co.merged(coarse)),
-                None => (cos, fine, coarse),
+                Some(v) => ViewBins {
+                    cos,
+                    whole_core: v.whole_core && whole_core,
+                    fine: v.fine.merged(fine),
+                    coarse: v.coarse.merged(coarse),
+                },
+                None => ViewBins {
+                    cos,
+                    whole_core,
+                    fine,
+                    coarse,
+                },
             };
             views.insert(key, merged);
         }
-        let cos_views: Vec<f64> = views.values().map(|v| v.0).collect();
+        let cos_views: Vec<f64> = views.values().map(|v| v.cos).collect();
         // I(d) with each view's radiance turned into exitance: points at the
         // mean distance of their texels (uneven coverage inside a bin does
-        // not bias the fit), and the texel-wide bins' means for R. Each
-        // texel is an area mean, so the model is averaged over a texel's
-        // width across the line (at ci, 0.67 mm, this moves s'_t by +0.5..+3 %).
+        // not bias the fit), over all views. Each texel is an area mean, so
+        // the model is averaged over a texel's width across the line (at
+        // ci, 0.67 mm, this moves s'_t by +0.5..+3 %). For R, the texel-wide
+        // bins' means of every view that sees the whole core: each of them
+        // measures the whole integral, however its pixels blur the line (a
+        // 77-degree view spreads it over a millimetre), where the bins'
+        // means over views mixed views that blur differently with views
+        // whose core is left out (skin1 at the default scale: R -0.8 % in
+        // every channel, though no view alone was below -0.5 %).
         let exitance = |per_radiance: &[f64]| {
-            let (fine, coarse) = views.values().zip(per_radiance).fold(
-                (
-                    DistanceBins::new(bin, diag_max),
-                    DistanceBins::new(grid.texel_mm, diag_max),
-                ),
-                |(fine, coarse), ((_, f, co), &k)| {
-                    (fine.merged(f.scaled(k)), coarse.merged(co.scaled(k)))
-                },
-            );
-            (Profile::new(fine.points(), grid.texel_mm), coarse.means())
+            let fine = views
+                .values()
+                .zip(per_radiance)
+                .fold(DistanceBins::new(bin, diag_max), |fine, (v, &k)| {
+                    fine.merged(v.fine.scaled(k))
+                });
+            let scaled = || {
+                views
+                    .values()
+                    .zip(per_radiance)
+                    .map(|(v, &k)| (v, v.coarse.scaled(k)))
+            };
+            let mut for_r: Vec<Vec<Option<f64>>> = scaled()
+                .filter(|(v, _)| v.whole_core)
+                .map(|(_, bins)| bins.means())
+                .collect();
+            if for_r.is_empty() {
+                let merged = scaled()
+                    .map(|(_, bins)| bins)
+                    .reduce(DistanceBins::merged)
+                    .expect("at least one view");
+                for_r.push(merged.means());
+            }
+            (Profile::new(fine.points(), grid.texel_mm), for_r)
+        };
+        let reflectance = |for_r: &[Vec<Option<f64>>], dp: Option<&EnteringStripe>| {
+            for_r
+                .iter()
+                .map(|means| reflectance_from_profile(means, grid.texel_mm, dp))
+                .sum::<f64>()
+                / for_r.len() as f64
         };
         // Until a' is known, the light under the boundary is taken as isotropic.
         let (mut profile, mut means) =
@@ -390,7 +463,7 @@ pub fn fit_capture(
         // R and the fit depend on each other through the model's fill of
         // the unmeasured near field and through the radiance-to-exitance
         // conversion: a few rounds converge.
-        let mut r = reflectance_from_profile(&means, grid.texel_mm, None);
+        let mut r = reflectance(&means, None);
         let mut fit = None;
         // The automatic range is chosen once, with the first R.
         let mut range = opts.range;
@@ -422,7 +495,7 @@ pub fn fit_capture(
             ));
             fit = Some((r_used, f, std::mem::replace(&mut profile, converted.0)));
             means = converted.1;
-            let next = reflectance_from_profile(&means, grid.texel_mm, Some(&dp));
+            let next = reflectance(&means, Some(&dp));
             stripes[c as usize] = Some(dp);
             // 1e-6 of R moves a' and s'_t by less than 1e-5 of themselves.
             if (next - r).abs() < 1e-6 * r {
@@ -643,7 +716,7 @@ fn fit_entrance(
         .stripe
         .iter()
         .filter(|s| {
-            (s.pass == 1 || is_vertical(s.light_dir)) && cos_to_mirror(s) <= SPECULAR_ENTRANCE_COS
+            (s.pass == 1 || is_vertical(s.light_dir)) && cos_to_mirror(s) <= SPECULAR_VIEW_COS
         })
         .collect();
     if used.is_empty() {
@@ -830,7 +903,7 @@ fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reac
             let d = s.signed_distance(grid.centre(i, j));
             let l = img.get(i, j)[c] as f64;
             if d.abs() <= reach && l.is_finite() {
-                bins.add(d + reach, l);
+                bins.add_spread(0.0, d + reach, l);
             }
         }
     }
@@ -840,6 +913,28 @@ fn band_flux(img: &Texture, s: &StripeEntry, grid: &crate::rectified::Grid, reac
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spread_bins_sum_the_rows_wherever_the_line_falls() {
+        // Texel rows every w mm across a line at offset a from the texel
+        // grid: the bins' means times w sum to the rows' sum for any a (a
+        // row on a bin edge counted whole went to one bin or the other).
+        let w = 0.5;
+        let profile = |d: f64| (-3.0 * d.abs()).exp();
+        for a in [0.0, 0.1, 0.25, 0.4999, 0.5] {
+            let mut bins = DistanceBins::new(w, 20.0);
+            let mut rows = 0.0;
+            for j in -30..=30 {
+                let y = j as f64 * w + a;
+                rows += profile(y) * w;
+                for _ in 0..7 {
+                    bins.add_spread(0.0, y.abs(), profile(y));
+                }
+            }
+            let r = 2.0 * bins.means().iter().flatten().sum::<f64>() * w;
+            assert!((r / rows - 1.0).abs() < 1e-9, "offset {a}: {r} vs {rows}");
+        }
+    }
 
     #[test]
     fn reflectance_continues_an_exponential_tail() {
