@@ -39,11 +39,11 @@ fn ci_demo_recovers_the_homogeneous_sample() {
     let model = reload_model(&out).unwrap();
     assert_eq!(model.dipole, summary.recovered);
 
-    // Issue 5's targets. Measured at this seed: a' -0.0001, +0.0000,
-    // +0.0001; s'_t -0.7, +0.3, -0.7 % (seeds 1 to 4: within 4.5 %).
+    // Issue 5's targets. Measured at this seed: a' within 0.0001; s'_t
+    // -0.8, -0.2, +0.1 % (seed 1: -1.6, -1.4, -0.5 %).
     assert_meets_issue_5(sample, &summary.recovered, &truth);
     // The polished top is a flat, smooth surface: f(w_i) is the Fresnel
-    // ratio T(theta_i)/T(0) within 3 % (measured: 1.3 % at most).
+    // ratio T(theta_i)/T(0) within 3 % (measured: 0.5 % at most).
     let diagnostics = model
         .diagnostics
         .as_ref()
@@ -96,8 +96,8 @@ fn assert_meets_issue_5(
 
 /// The same targets on a milk (a' up to 0.9996, light spreading over
 /// centimetres) and on skin (a' down to 0.92, most light near the line).
-/// Measured (seed 1): whole milk a' within 0.0002, s'_t -2.7, -0.3, -1.8 %;
-/// skin2 a' within 0.0011, s'_t -0.3, -1.7, +0.4 %. Other seeds and
+/// Measured (seed 1): whole milk a' within 0.0001, s'_t -2.1, -1.8, -1.1 %;
+/// skin2 a' within 0.0010, s'_t -0.4, +0.1, +0.9 %. Other seeds and
 /// presets: README "Status".
 #[test]
 fn ci_demo_recovers_milk_and_skin() {
