@@ -690,10 +690,15 @@ impl SimCalibrator {
         Ok(())
     }
 
+    /// The camera the others' colour is calibrated against (the top one).
+    fn reference_camera(&self) -> usize {
+        self.cameras.last().copied().unwrap_or(7)
+    }
+
     /// Radiance in camera units (reference camera, true response) per
     /// W sr^-1 m^-2 of true radiance, channel c.
     fn camera_unit(&self, c: usize) -> f64 {
-        let kref = *self.cameras.last().unwrap_or(&7);
+        let kref = self.reference_camera();
         self.rig.cameras[kref].colour_gain[c] * sim_light::sensor::SENSITIVITY
             / sim_light::sensor::FULL_WELL_E
     }
@@ -730,10 +735,25 @@ impl SimCalibrator {
             .exp()
     }
 
-    /// `camera_unit` in the reference camera's calibrated units.
-    fn calibrated_unit(&self, cal: &Calibration, c: usize) -> f64 {
-        let kref = *self.cameras.last().unwrap_or(&7);
-        self.camera_unit(c) * self.response_scale(cal, kref, c)
+    /// Lamp `li`'s true irradiance, channel c, in true camera units.
+    fn true_lamp_irradiance(&self, li: usize, c: usize) -> f64 {
+        self.rig.lamps[li].irradiance[c] * self.camera_unit(c)
+    }
+
+    /// Laser c's true flux per mm of stripe in true camera units.
+    fn true_flux_per_mm(&self, c: usize) -> f64 {
+        self.rig.laser.power_w[c] / self.rig.laser.stripe_length * self.camera_unit(c) * 1e6
+    }
+
+    /// The true laser-plane angle at clamp elevation `elev`, as the
+    /// two-height target measures it (light arc and turntable at LASER_ARC).
+    fn true_plane_angle(&self, elev: f64) -> f64 {
+        let az = hardware::NOMINAL_GEOMETRY.light_arc_azimuth0 + LASER_ARC;
+        let geo = self.rig.laser_geometry(elev, LASER_ARC, 0.0);
+        let horiz = (geo.origin - geo.centre)
+            .truncate()
+            .dot(DVec2::new(az.cos(), az.sin()));
+        (geo.origin.z - geo.centre.z).atan2(horiz)
     }
 
     /// Lamp irradiance from the reference white (directions: nominal, see docs).
@@ -741,7 +761,7 @@ impl SimCalibrator {
         let world = self.world("white")?;
         let rho = 0.95;
         let g = hardware::NOMINAL_GEOMETRY;
-        let k = *self.cameras.last().unwrap_or(&7);
+        let k = self.reference_camera();
         let cam = self.cam_at_binning(cal, k)?;
         let gain = cal
             .camera(k)
@@ -782,7 +802,7 @@ impl SimCalibrator {
             let e = photometric::lamp_irradiance(l, rho, dir.z)?;
             let mut worst = 0.0f64;
             for c in 0..3 {
-                let truth = self.rig.lamps[li].irradiance[c] * self.calibrated_unit(cal, c);
+                let truth = self.true_lamp_irradiance(li, c) * self.response_scale(cal, k, c);
                 worst = worst.max((e[c] / truth - 1.0).abs());
             }
             rows.push(Row {
@@ -806,7 +826,7 @@ impl SimCalibrator {
 
     /// Laser-plane angle (two-height target) and flux per channel (reference white).
     pub fn laser(&self, cal: &mut Calibration, rows: &mut Vec<Row>) -> Result<()> {
-        let k = *self.cameras.last().unwrap_or(&7);
+        let k = self.reference_camera();
         let cam = self.cam_at_binning(cal, k)?;
         let gain = cal
             .camera(k)
@@ -870,11 +890,7 @@ impl SimCalibrator {
             let d = photometric::parallel_offset(&halves[0], &halves[1], towards.truncate())
                 .map_err(|e| Error::Input(format!("laser at {:.0} deg: {e}", elev.to_degrees())))?;
             let angle = 10f64.atan2(d);
-            let geo = self.rig.laser_geometry(elev, arc, 0.0);
-            let horiz = (geo.origin - geo.centre)
-                .truncate()
-                .dot(DVec2::new(az.cos(), az.sin()));
-            let truth = (geo.origin.z - geo.centre.z).atan2(horiz);
+            let truth = self.true_plane_angle(elev);
             let err = (angle - truth).to_degrees();
             rows.push(Row {
                 quantity: format!("laser plane angle at {:.0} deg (deg)", elev.to_degrees()),
@@ -920,9 +936,7 @@ impl SimCalibrator {
             let window = grid.width as f64 * grid.texel_mm;
             flux[c] =
                 photometric::laser_flux_per_mm(&vals, grid.texel_mm * grid.texel_mm, rho, window)?;
-            let truth = self.rig.laser.power_w[c] / self.rig.laser.stripe_length
-                * self.calibrated_unit(cal, c)
-                * 1e6;
+            let truth = self.true_flux_per_mm(c) * self.response_scale(cal, k, c);
             let err = (flux[c] / truth - 1.0).abs();
             rows.push(Row {
                 quantity: format!("laser {c} flux per mm rel. err"),
@@ -947,6 +961,7 @@ impl SimCalibrator {
     pub fn truth(&self, cal: &mut Calibration) {
         let g = hardware::NOMINAL_GEOMETRY;
         let b = self.binning() as f64;
+        let kref = self.reference_camera();
         for &k in &self.cameras {
             let truth = &self.rig.cameras[k];
             // linear(Z) = m with I(m) = Z / 255 (m = 1 at saturation, as the
@@ -965,7 +980,6 @@ impl SimCalibrator {
                     })
                     .collect(),
             };
-            let kref = *self.cameras.last().unwrap_or(&7);
             let cam = cal.camera_mut(k);
             cam.response = vec![table; 3];
             cam.colour_gain = Some(std::array::from_fn(|c| {
@@ -982,26 +996,15 @@ impl SimCalibrator {
             .map(|(li, _)| LampCal {
                 index: li,
                 direction: self.rig.lamps[li].direction,
-                irradiance: Some(std::array::from_fn(|c| {
-                    self.rig.lamps[li].irradiance[c] * self.camera_unit(c)
-                })),
+                irradiance: Some(std::array::from_fn(|c| self.true_lamp_irradiance(li, c))),
             })
             .collect();
-        let az = g.light_arc_azimuth0 + LASER_ARC;
         let plane_angles = (g.laser.positions.iter())
-            .map(|&elev| {
-                let geo = self.rig.laser_geometry(elev, LASER_ARC, 0.0);
-                let horiz = (geo.origin - geo.centre)
-                    .truncate()
-                    .dot(DVec2::new(az.cos(), az.sin()));
-                [elev, (geo.origin.z - geo.centre.z).atan2(horiz)]
-            })
+            .map(|&elev| [elev, self.true_plane_angle(elev)])
             .collect();
         cal.laser = Some(LaserCal {
             plane_angles,
-            flux_per_mm: Some(std::array::from_fn(|c| {
-                self.rig.laser.power_w[c] / self.rig.laser.stripe_length * self.camera_unit(c) * 1e6
-            })),
+            flux_per_mm: Some(std::array::from_fn(|c| self.true_flux_per_mm(c))),
         });
     }
 }

@@ -420,19 +420,18 @@ pub fn fit_capture(
                 .fold(DistanceBins::new(bin, diag_max), |fine, (v, &k)| {
                     fine.merged(v.fine.scaled(k))
                 });
-            let scaled = || {
-                views
+            let whole = views
+                .values()
+                .zip(per_radiance)
+                .filter(|(v, _)| v.whole_core);
+            let mut for_r: Vec<Vec<Option<f64>>> =
+                whole.map(|(v, &k)| v.coarse.scaled(k).means()).collect();
+            if for_r.is_empty() {
+                // No view sees the whole core: the bins of all views together.
+                let merged = views
                     .values()
                     .zip(per_radiance)
-                    .map(|(v, &k)| (v, v.coarse.scaled(k)))
-            };
-            let mut for_r: Vec<Vec<Option<f64>>> = scaled()
-                .filter(|(v, _)| v.whole_core)
-                .map(|(_, bins)| bins.means())
-                .collect();
-            if for_r.is_empty() {
-                let merged = scaled()
-                    .map(|(_, bins)| bins)
+                    .map(|(v, &k)| v.coarse.scaled(k))
                     .reduce(DistanceBins::merged)
                     .expect("at least one view");
                 for_r.push(merged.means());

@@ -59,8 +59,19 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<ExitCode> {
         .map_err(|e| anyhow::anyhow!("--quality: {e}"))?;
     let mut cal = Calibration::load_or_default(&args.out)
         .with_context(|| format!("reading {}", args.out.display()))?;
-    cal.source = format!("sim seed {} quality {}", args.seed, args.quality);
     let sim = SimCalibrator::new(args.seed, quality);
+    if args.step == Step::Truth {
+        cal.source = format!("sim seed {} truth", args.seed);
+        sim.truth(&mut cal);
+        cal.save(&args.out)
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        println!(
+            "the simulated rig's true calibration written to {}",
+            args.out.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    cal.source = format!("sim seed {} quality {}", args.seed, args.quality);
     let steps: &[Step] = match args.step {
         Step::All => &[
             Step::Response,
@@ -72,16 +83,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<ExitCode> {
         _ => std::slice::from_ref(&args.step),
     };
     let mut rows = Vec::new();
-    if args.step == Step::Truth {
-        sim.truth(&mut cal);
-        cal.save(&args.out)
-            .with_context(|| format!("writing {}", args.out.display()))?;
-        println!(
-            "the simulated rig's true calibration written to {}",
-            args.out.display()
-        );
-        return Ok(ExitCode::SUCCESS);
-    }
     for step in steps {
         let res = match step {
             Step::Response => sim.response(&mut cal, &mut rows),
