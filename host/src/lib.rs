@@ -4,6 +4,8 @@
 //!
 //! - [`pipeline`]: capture plan -> exposure-bracket shots and rectification settings.
 //! - [`demo`]: the whole job on the built-in simulated rig (`qhm demo`).
+//! - [`output`]: the rule for writing outputs (refuse, `--force`, staged directories).
 
 pub mod demo;
+pub mod output;
 pub mod pipeline;
