@@ -37,6 +37,7 @@
 
 use std::f32::consts::PI;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
@@ -224,36 +225,7 @@ pub fn prepare<M: Material>(
         SurfaceSamples::default()
     };
     stats.secs_samples = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let entrance = if settings.mode.plain_dipole() {
-        Entrance::Fresnel(dipole.eta)
-    } else {
-        Entrance::Model(material)
-    };
-    points::compute_irradiance(
-        scene,
-        &mut samples,
-        entrance,
-        settings.env_samples,
-        settings.seed,
-    );
-    stats.secs_irradiance = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let tree = DipoleTree::new(&samples);
-    // Every sample stands for an equal share A of the area; the kernel is
-    // averaged over a disk of twice that radius, which hides the sample
-    // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
-    let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
-    // Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
-    let hole = if settings.mode.has_lrf() && material.has_lrf() {
-        material.local_disc_mm()
-    } else {
-        0.0
-    };
-    let rd = RdTable::with_hole(&dipole, rho, hole);
-    stats.secs_tree = t.elapsed().as_secs_f64();
-    stats.surface_samples = samples.pos.len();
-    stats.octree_nodes = tree.node_count();
+    let (tree, rd) = light_pass(scene, material, settings, &mut samples, stats);
     let t = Instant::now();
     let (tw, th) = material.texture_size();
     let texture = if settings.synthesis && tw >= 8 && th >= 8 {
@@ -275,6 +247,73 @@ pub fn prepare<M: Material>(
         eta: dipole.eta,
         fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
     })
+}
+
+/// Pass 1 after the samples: their irradiance (from the scene's lights and
+/// env map, through the mode's entrance), the octree over them and the R_d
+/// table (whose local hole depends on the mode).
+fn light_pass<M: Material>(
+    scene: &Scene,
+    material: &M,
+    settings: &RenderSettings,
+    samples: &mut SurfaceSamples,
+    stats: &mut RenderStats,
+) -> (DipoleTree, RdTable) {
+    let dipole = material.dipole();
+    let t = Instant::now();
+    let entrance = if settings.mode.plain_dipole() {
+        Entrance::Fresnel(dipole.eta)
+    } else {
+        Entrance::Model(material)
+    };
+    points::compute_irradiance(
+        scene,
+        samples,
+        entrance,
+        settings.env_samples,
+        settings.seed,
+    );
+    stats.secs_irradiance = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let tree = DipoleTree::new(samples);
+    // Every sample stands for an equal share A of the area; the kernel is
+    // averaged over a disk of twice that radius, which hides the sample
+    // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
+    let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
+    // Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
+    let hole = if settings.mode.has_lrf() && material.has_lrf() {
+        material.local_disc_mm()
+    } else {
+        0.0
+    };
+    let rd = RdTable::with_hole(&dipole, rho, hole);
+    stats.secs_tree = t.elapsed().as_secs_f64();
+    stats.surface_samples = samples.pos.len();
+    stats.octree_nodes = tree.node_count();
+    (tree, rd)
+}
+
+impl Prepared {
+    /// Pass 1 for new lights, env map or mode on the same surface samples
+    /// and texture (`qhm view` while a light is dragged): redoes only the
+    /// irradiance, the octree and the R_d table, exactly as [`prepare`]
+    /// would. The mode must keep the dipole term on or off as prepared.
+    pub fn relight<M: Material>(
+        &mut self,
+        scene: &Scene,
+        material: &M,
+        settings: &RenderSettings,
+        stats: &mut RenderStats,
+    ) -> Result<(), RenderError> {
+        settings.validate()?;
+        if settings.mode.has_global() == self.samples.pos.is_empty() {
+            return Err(RenderError::Settings(
+                "relight: the mode turns the dipole term on or off; prepare again".into(),
+            ));
+        }
+        (self.tree, self.rd) = light_pass(scene, material, settings, &mut self.samples, stats);
+        Ok(())
+    }
 }
 
 /// Renders `scene` with `material`: the API the CLI and tests use.
@@ -317,12 +356,43 @@ where
     let mut stats = RenderStats::default();
     let prep = prepare(scene, material, settings, &mut stats)?;
     let t = Instant::now();
-    let (img, queries, terms) = render_pixels(scene, material, settings, &prep, &ray);
+    let (img, queries, terms) = render_pixels(scene, material, settings, &prep, &ray, None);
     stats.secs_pixels = t.elapsed().as_secs_f64();
     stats.queries = queries;
     stats.terms = terms;
     stats.secs_total = t0.elapsed().as_secs_f64();
     Ok((img, stats))
+}
+
+/// The pixel pass alone, through `scene.camera`, on an existing pass 1:
+/// a camera move with the object, lights and mode unchanged reuses `prep`
+/// whole (`qhm view`). Returns None, unfinished, once `cancel` is set (it is
+/// read before each tile). The image equals [`render_scene_stats`]'s when
+/// `prep` was made with the same settings.
+pub fn render_prepared<M: Material>(
+    scene: &Scene,
+    material: &M,
+    settings: &RenderSettings,
+    prep: &Prepared,
+    cancel: &AtomicBool,
+) -> Option<(Image, RenderStats)> {
+    let t = Instant::now();
+    let ray = |x, y| scene.camera.ray(x, y, settings.width, settings.height);
+    let (img, queries, terms) = render_pixels(scene, material, settings, prep, &ray, Some(cancel));
+    if cancel.load(Ordering::Relaxed) {
+        return None;
+    }
+    let secs = t.elapsed().as_secs_f64();
+    let stats = RenderStats {
+        surface_samples: prep.samples.pos.len(),
+        octree_nodes: prep.tree.node_count(),
+        secs_pixels: secs,
+        secs_total: secs,
+        queries,
+        terms,
+        ..RenderStats::default()
+    };
+    Some((img, stats))
 }
 
 const TILE: u32 = 16;
@@ -337,6 +407,7 @@ fn render_pixels<M: Material, F>(
     settings: &RenderSettings,
     prep: &Prepared,
     camera: &F,
+    cancel: Option<&AtomicBool>,
 ) -> (Image, u64, u64)
 where
     F: Fn(f32, f32) -> Ray + Sync,
@@ -363,6 +434,9 @@ where
             let mut out = Vec::with_capacity((TILE * TILE) as usize);
             let mut qs = QueryStats::default();
             let mut queries = 0u64;
+            if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                return (x0, y0, out, qs, queries);
+            }
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
                     let mut rng = Pcg64Mcg::seed_from_u64(
