@@ -237,6 +237,7 @@ pub fn rectify_capture(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Index> {
     let mut writer = Writer::create(out, opts.grid)?;
+    writer.set_calibration(crate::rectified::CalibrationSummary::of(cal));
     let mut done = 0;
     // Chunks bound memory and keep the index in shot order.
     for chunk in shots.chunks(64) {

@@ -87,6 +87,82 @@ pub struct Index {
     pub stripe: Vec<StripeEntry>,
     #[serde(default)]
     pub lamp: Vec<LampEntry>,
+    /// What the calibration used held, in brief (the model fit keeps it for its report).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationSummary>,
+}
+
+/// `[calibration]` of index.toml (the reader's twin is qhm_model::rectified).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationSummary {
+    #[serde(default)]
+    pub source: String,
+    #[serde(default)]
+    pub cameras: Vec<CameraSummary>,
+    #[serde(default)]
+    pub lamps: Vec<LampSummary>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_flux_per_mm: Option<[f64; 3]>,
+    /// (nominal, measured) laser plane angle per clamp position, degrees.
+    #[serde(default)]
+    pub laser_plane_angles_deg: Vec<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub turntable_axis: Option<[f64; 3]>,
+}
+
+/// One camera of a [`CalibrationSummary`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CameraSummary {
+    pub index: usize,
+    pub response: bool,
+    pub geometry: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reprojection_rms_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colour_gain: Option<[f64; 3]>,
+}
+
+/// One lamp of a [`CalibrationSummary`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct LampSummary {
+    pub index: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<[f64; 3]>,
+}
+
+impl CalibrationSummary {
+    pub fn of(cal: &crate::Calibration) -> Self {
+        CalibrationSummary {
+            source: cal.source.clone(),
+            cameras: cal
+                .camera
+                .iter()
+                .map(|c| CameraSummary {
+                    index: c.index,
+                    response: !c.response.is_empty(),
+                    geometry: c.geometry.is_some(),
+                    reprojection_rms_px: c.reprojection_rms_px,
+                    colour_gain: c.colour_gain,
+                })
+                .collect(),
+            lamps: cal
+                .lamp
+                .iter()
+                .map(|l| LampSummary {
+                    index: l.index,
+                    irradiance: l.irradiance,
+                })
+                .collect(),
+            laser_flux_per_mm: cal.laser.as_ref().and_then(|l| l.flux_per_mm),
+            laser_plane_angles_deg: cal.laser.as_ref().map_or(Vec::new(), |l| {
+                l.plane_angles
+                    .iter()
+                    .map(|a| a.map(f64::to_degrees))
+                    .collect()
+            }),
+            turntable_axis: cal.turntable.as_ref().map(|t| t.axis),
+        }
+    }
 }
 
 /// Writes a rectified dataset incrementally; `finish` writes index.toml last,
@@ -120,8 +196,14 @@ impl Writer {
                 grid: grid.into(),
                 stripe: Vec::new(),
                 lamp: Vec::new(),
+                calibration: None,
             },
         })
+    }
+
+    /// Records the calibration the images are rectified with.
+    pub fn set_calibration(&mut self, cal: CalibrationSummary) {
+        self.index.calibration = Some(cal);
     }
 
     fn check(&self, img: &ImageF) -> Result<()> {
@@ -238,6 +320,24 @@ mod tests {
             line_dir: [0.0, 1.0],
         };
         w.add_stripe(&img, entry.clone()).unwrap();
+        let cal = CalibrationSummary {
+            source: "test".into(),
+            cameras: vec![CameraSummary {
+                index: 5,
+                response: true,
+                geometry: true,
+                reprojection_rms_px: Some(0.2),
+                colour_gain: Some([1.0, 0.99, 1.01]),
+            }],
+            lamps: vec![LampSummary {
+                index: 7,
+                irradiance: Some([2.0; 3]),
+            }],
+            laser_flux_per_mm: Some([1.0, 2.0, 3.0]),
+            laser_plane_angles_deg: vec![[60.0, 59.9]],
+            turntable_axis: None,
+        };
+        w.set_calibration(cal.clone());
         w.add_lamp(
             &img,
             LampEntry {
@@ -265,6 +365,7 @@ mod tests {
         w.finish().unwrap();
         let idx = read_index(&root).unwrap();
         assert_eq!(idx.stripe.len(), 1);
+        assert_eq!(idx.calibration.as_ref(), Some(&cal));
         assert_eq!(idx.stripe[0].file, "stripes/000000.exr");
         assert_eq!(idx.grid.origin_mm, [-2.0, -2.0]);
         let back = read_image(&root, &idx, &idx.stripe[0].file).unwrap();

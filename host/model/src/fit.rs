@@ -69,7 +69,7 @@ impl Default for FitOptions {
 }
 
 /// Wall-clock of the fit stages, seconds.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FitTimings {
     pub dipole: f64,
     pub entrance: f64,
@@ -316,7 +316,32 @@ pub fn fit_capture(
     capture_dir: &Path,
     opts: &FitOptions,
 ) -> Result<(MaterialModel, FitTimings), ModelError> {
+    fit_capture_with_progress(capture_dir, opts, &|_, _| {})
+}
+
+/// [`fit_capture`], calling `progress(done, total)` as its steps finish: one
+/// per channel's dipole, one for f(w_i), one per f_v view, one per lamp image.
+pub fn fit_capture_with_progress(
+    capture_dir: &Path,
+    opts: &FitOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(MaterialModel, FitTimings), ModelError> {
     let data = Rectified::open(capture_dir)?;
+    let total_steps = 4
+        + data.index.lamp.len()
+        + data
+            .index
+            .stripe
+            .iter()
+            .filter(|s| s.pass == 2)
+            .map(|s| dir_key(s.view_dir))
+            .collect::<std::collections::BTreeSet<_>>()
+            .len();
+    let steps_done = std::sync::atomic::AtomicUsize::new(0);
+    let step = || {
+        let done = steps_done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        progress(done, total_steps);
+    };
     let grid = data.index.grid.clone();
     let (w, h) = (grid.width as usize, grid.height as usize);
     let bin = opts.bin_mm.unwrap_or(grid.texel_mm / 8.0);
@@ -514,6 +539,7 @@ pub fn fit_capture(
             profile,
             fit,
         });
+        step();
     }
     let dipole = DipoleParams {
         alpha_prime: std::array::from_fn(|c| channels[c].fit.alpha_prime),
@@ -530,6 +556,7 @@ pub fn fit_capture(
     let t0 = Instant::now();
     let (entrance, entrance_samples) = fit_entrance(&data, opts, &mut notes)?;
     timings.entrance = t0.elapsed().as_secs_f64();
+    step();
 
     // 5: the exiting function, per pass-2 view.
     let t0 = Instant::now();
@@ -566,6 +593,7 @@ pub fn fit_capture(
                     }
                 }
             }
+            step();
             let mut missing = 0;
             let data = num
                 .iter()
@@ -639,6 +667,7 @@ pub fn fit_capture(
                     })
                 })
                 .collect();
+            step();
             let sample = LrfSample {
                 light: f32v(lamp.light_dir),
                 view: wo,
@@ -675,6 +704,9 @@ pub fn fit_capture(
             channels,
             entrance_samples,
             notes,
+            timings: Some(timings.clone()),
+            calibration: data.index.calibration.clone(),
+            capture_dir: Some(capture_dir.display().to_string()),
         }),
     };
     model.check(capture_dir)?;

@@ -165,6 +165,15 @@ pub struct FitDiagnostics {
     pub entrance_samples: Vec<([f32; 3], [f32; 3])>,
     /// Free-form notes (counts, fallbacks).
     pub notes: Vec<String>,
+    /// Wall time of the fit's stages (absent in models fitted before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timings: Option<crate::fit::FitTimings>,
+    /// The calibration the capture was rectified with, from its rectified index.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<crate::rectified::CalibrationSummary>,
+    /// The capture directory the model was fitted from, as the fit was given it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capture_dir: Option<String>,
 }
 
 /// The four-part material model.

@@ -85,6 +85,58 @@ pub struct Index {
     pub stripe: Vec<StripeEntry>,
     #[serde(default)]
     pub lamp: Vec<LampEntry>,
+    /// The calibration the images were rectified with (absent in datasets
+    /// rectified before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationSummary>,
+}
+
+/// `[calibration]` of index.toml: what the rectification's calibration held,
+/// in brief. The fit copies it into fit.json and the report shows it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationSummary {
+    /// The calibration file's `source` (where its frames came from).
+    #[serde(default)]
+    pub source: String,
+    #[serde(default)]
+    pub cameras: Vec<CameraSummary>,
+    #[serde(default)]
+    pub lamps: Vec<LampSummary>,
+    /// Laser flux per mm of stripe at full drive (R, G, B), camera units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_flux_per_mm: Option<[f64; 3]>,
+    /// Laser plane angle per clamp position: (nominal, measured), degrees.
+    #[serde(default)]
+    pub laser_plane_angles_deg: Vec<[f64; 2]>,
+    /// The turntable's rotation axis (unit, world frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub turntable_axis: Option<[f64; 3]>,
+}
+
+/// One camera of a [`CalibrationSummary`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CameraSummary {
+    pub index: usize,
+    /// Whether its response curves were calibrated.
+    #[serde(default)]
+    pub response: bool,
+    /// Whether its intrinsics and pose were calibrated.
+    #[serde(default)]
+    pub geometry: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reprojection_rms_px: Option<f64>,
+    /// Factor per channel to the reference camera's linear values.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colour_gain: Option<[f64; 3]>,
+}
+
+/// One lamp of a [`CalibrationSummary`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LampSummary {
+    pub index: usize,
+    /// Irradiance normal to the lamp per channel, camera units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<[f64; 3]>,
 }
 
 /// An opened, validated rectified dataset.

@@ -227,6 +227,10 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
             grid,
             stripe: stripes,
             lamp: lamps,
+            calibration: Some(crate::rectified::CalibrationSummary {
+                source: "synthetic (qhm_model::synth)".into(),
+                ..Default::default()
+            }),
         },
     )
 }
