@@ -138,6 +138,34 @@ fn check_eta(eta: f64) -> Result<(), ModelError> {
     }
 }
 
+/// The largest total diffuse reflectance a flat sample of relative index
+/// `eta` can have per incident flux: 1 - F(0) = T(0), the share of a normal
+/// beam that enters (the rest, F(0) = ((eta - 1) / (eta + 1))², is the
+/// specular reflection, which R leaves out). 0.98299 at eta 1.3.
+pub fn max_reflectance(eta: f64) -> f64 {
+    dipole::normal_transmittance(eta)
+}
+
+/// Refuses a reflectance outside (0, [`max_reflectance`]], in the user's terms.
+fn check_reflectance(reflectance: f64, eta: f64) -> Result<(), ModelError> {
+    let max = max_reflectance(eta);
+    if reflectance.is_finite() && reflectance > 0.0 && reflectance <= max {
+        return Ok(());
+    }
+    let why = if reflectance.is_finite() && reflectance > max {
+        format!(
+            "above {max:.6}, the most a sample of index eta = {eta} reflects diffusely \
+             ({:.2} % of a normal beam is reflected at its surface and never enters)",
+            100.0 * (1.0 - max)
+        )
+    } else {
+        "not a positive number".to_string()
+    };
+    Err(ModelError::Domain(format!(
+        "reflectance R = {reflectance} is {why}; R must be in (0, {max:.6}] at eta = {eta}"
+    )))
+}
+
 /// Smallest s'_t considered, mm^-1 (s'_t = 0 has no dipole).
 pub const SIGMA_T_PRIME_MIN: f64 = 0.01;
 
@@ -298,6 +326,7 @@ pub struct ChannelFit {
 
 /// Fits a profile (per incident flux, like R): a' by inverting R / T(0),
 /// then s'_t over `range` (or an automatic range) against T(0) I_D(d).
+/// R must be in (0, [`max_reflectance`]]; a fit that is not finite is an error.
 pub fn fit_profile(
     profile: &Profile,
     reflectance: f64,
@@ -308,7 +337,9 @@ pub fn fit_profile(
 ) -> Result<ProfileFit, ModelError> {
     // The measurement is per incident flux; the dipole is per entered flux,
     // and a normal stripe enters through T(0) (Jensen et al. 2001's F_t(w_i)).
+    check_eta(eta)?;
     let t_in = dipole::normal_transmittance(eta);
+    check_reflectance(reflectance, eta)?;
     let entered = Profile {
         intensity: profile.intensity.iter().map(|i| i / t_in).collect(),
         ..profile.clone()
@@ -339,6 +370,13 @@ pub fn fit_profile(
         )));
     }
     let (sigma_t_prime, residual) = search_sigma_t_prime(profile, &idx, &table, norm);
+    if !(sigma_t_prime.is_finite() && residual.is_finite() && alpha_prime.is_finite()) {
+        let peak = profile.intensity.iter().fold(0.0f64, |m, i| m.max(i.abs())) * t_in;
+        return Err(ModelError::Fit(format!(
+            "no finite s'_t fits the profile (the misfit overflows: intensities reach \
+             {peak:.3e} mm^-1, where a profile per unit incident flux integrates to at most R)"
+        )));
+    }
     Ok(ProfileFit {
         model,
         alpha_prime,
@@ -672,6 +710,41 @@ mod tests {
         assert_eq!(p.intensity, vec![1.0, 0.5, 0.25]);
         let q = Profile::parse_csv(&p.to_csv(), "y").unwrap();
         assert_eq!(p, q);
+    }
+
+    #[test]
+    fn reflectance_limit_is_one_minus_normal_fresnel_and_named_in_user_terms() {
+        let p = synthetic(0.99, 1.0, 0.0, 1);
+        let max = max_reflectance(1.3);
+        assert!((max - (1.0 - (0.3f64 / 2.3).powi(2))).abs() < 1e-12);
+        for model in [ProfileModel::Dipole, ProfileModel::Transport] {
+            for r in [1.0, 0.999999, 0.983] {
+                let e = fit_profile(&p, r, 1.3, model, None, Norm::Poisson)
+                    .unwrap_err()
+                    .to_string();
+                assert!(e.contains(&format!("R = {r} is above 0.982987")), "{e}");
+                assert!(e.contains("(0, 0.982987] at eta = 1.3"), "{e}");
+                assert!(!e.contains("T(0)") && !e.contains("R /"), "{e}");
+            }
+            assert!(fit_profile(&p, max, 1.3, model, None, Norm::Poisson).is_ok());
+            for r in [0.0, -0.5, f64::NAN] {
+                let e = fit_profile(&p, r, 1.3, model, None, Norm::Poisson).unwrap_err();
+                assert!(e.to_string().contains("not a positive number"), "{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_overflowing_profile_is_an_error_not_nan() {
+        let p = Profile::new((0..50).map(|k| (k as f64 * 0.2, 1e300)), 0.0);
+        for model in [ProfileModel::Dipole, ProfileModel::Transport] {
+            let e = fit_profile(&p, 0.5, 1.3, model, Some((1.0, 8.0)), Norm::Absolute)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("no finite s'_t"), "{e}");
+            let auto = fit_profile(&p, 0.5, 1.3, model, None, Norm::Poisson);
+            assert!(auto.is_err(), "{auto:?}");
+        }
     }
 
     #[test]

@@ -16,7 +16,9 @@ pub struct FitProfileArgs {
     /// CSV with header `distance_mm,intensity_per_mm`: exitance at distance d
     /// from a straight stripe per unit incident flux per mm of stripe.
     pub profile: PathBuf,
-    /// Total diffuse reflectance R of the sample, in (0, 1].
+    /// Total diffuse reflectance R of the sample per incident flux, the
+    /// specular reflection left out: in (0, 1 - F(0)], F(0) = ((eta - 1) /
+    /// (eta + 1))² the surface's normal reflectance (R <= 0.98299 at eta 1.3).
     #[arg(long)]
     pub reflectance: f64,
     /// Relative index of refraction of the dipole.
