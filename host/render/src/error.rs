@@ -40,6 +40,9 @@ pub enum MeshError {
         "mesh is not manifold: {edges} edges are shared by more than two faces (first near {at:?} mm)"
     )]
     NonManifold { edges: usize, at: [f32; 3] },
+    /// The scale is not positive, or makes the object too small or too large.
+    #[error("{0}")]
+    Scale(String),
     /// Normal or UV arrays do not match the vertex count.
     #[error("mesh {what} count {got} does not match the {expected} vertices")]
     AttributeCount {

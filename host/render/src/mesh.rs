@@ -47,6 +47,50 @@ impl MeshInput {
     }
 }
 
+/// The smallest and largest object a mesh may be, across its bounding box,
+/// in mm: beyond them f32 geometry loses its faces (to overflow at 1e30 mm)
+/// and no material measured in mm makes sense.
+pub const MIN_EXTENT_MM: f64 = 1e-3;
+pub const MAX_EXTENT_MM: f64 = 1e7;
+
+/// Diagonal of the bounding box of the finite points; None when there are
+/// none or they coincide (such a mesh has no faces, which `build` says).
+fn extent(points: impl Iterator<Item = [f32; 3]>) -> Option<f64> {
+    let (lo, hi) = points.filter(|p| p.iter().all(|c| c.is_finite())).fold(
+        None,
+        |b: Option<([f64; 3], [f64; 3])>, p| {
+            let p = p.map(f64::from);
+            Some(b.map_or((p, p), |(lo, hi)| {
+                (
+                    [lo[0].min(p[0]), lo[1].min(p[1]), lo[2].min(p[2])],
+                    [hi[0].max(p[0]), hi[1].max(p[1]), hi[2].max(p[2])],
+                )
+            }))
+        },
+    )?;
+    let d = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    (d > 0.0).then_some(d)
+}
+
+/// Refuses a scale that is not a positive number or that puts an object of
+/// `extent` file units outside [MIN_EXTENT_MM, MAX_EXTENT_MM].
+fn check_scale(extent: Option<f64>, scale: f32) -> Result<(), MeshError> {
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(MeshError::Scale(format!(
+            "mesh scale {scale} (object.scale) must be a number > 0"
+        )));
+    }
+    match extent.map(|e| e * f64::from(scale)) {
+        Some(mm) if !(MIN_EXTENT_MM..=MAX_EXTENT_MM).contains(&mm) => {
+            Err(MeshError::Scale(format!(
+                "mesh scale {scale} (object.scale) is out of range: it makes the object \
+                 {mm:.3e} mm across, and it must be {MIN_EXTENT_MM} to {MAX_EXTENT_MM} mm"
+            )))
+        }
+        _ => Ok(()),
+    }
+}
+
 impl Mesh {
     /// Loads an OBJ or PLY file (by extension), positions in file units.
     pub fn load_input(path: &Path) -> Result<MeshInput, MeshError> {
@@ -77,8 +121,25 @@ impl Mesh {
     /// `uv_scale_mm` is the surface length one file UV unit spans.
     pub fn load(path: &Path, scale: f32, uv_scale_mm: Option<f32>) -> Result<Mesh, MeshError> {
         let mut input = Self::load_input(path)?;
+        check_scale(extent(input.positions.iter().copied()), scale)?;
         input.scale(scale);
         Mesh::build(input, uv_scale_mm)
+    }
+
+    /// This mesh `scale` times larger, as if built from scaled positions
+    /// (welding and the degenerate-face test are relative to its size, and
+    /// its surface coordinates are in mm, so they scale too).
+    pub fn scaled(mut self, scale: f32) -> Result<Mesh, MeshError> {
+        check_scale(extent(self.positions.iter().map(|p| p.to_array())), scale)?;
+        if scale != 1.0 {
+            for p in &mut self.positions {
+                *p *= scale;
+            }
+            for uv in self.uvs.iter_mut().flatten() {
+                *uv *= scale;
+            }
+        }
+        Ok(self)
     }
 
     /// Validates raw data and derives normals, UVs and tangents.
@@ -493,6 +554,26 @@ mod tests {
         let empty = dir.path().join("e.obj");
         std::fs::write(&empty, "v 0 0 0\n").unwrap();
         assert!(Mesh::load(&empty, 1.0, None).is_err());
+    }
+
+    #[test]
+    fn scales_that_put_the_mesh_out_of_range_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("q.obj");
+        std::fs::write(&p, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n").unwrap();
+        for s in [1e30, 1e8, 1e-4, 0.0, -1.0, f32::NAN] {
+            let e = Mesh::load(&p, s, None).unwrap_err().to_string();
+            assert!(e.contains(&format!("scale {s}")), "{s}: {e}");
+            let range = s > 0.0 && s.is_finite();
+            assert_eq!(e.contains("0.001 to 10000000 mm"), range, "{s}: {e}");
+            assert!(!e.contains("degenerate"), "{s}: {e}");
+        }
+        assert!(Mesh::load(&p, 1e6, None).is_ok());
+        let m = Mesh::build(quad(), None).unwrap();
+        let big = m.clone().scaled(3.0).unwrap();
+        assert!((big.total_area() - 9.0 * m.total_area()).abs() < 1e-4);
+        assert_eq!(big.uv(0, 1.0, 0.0), 3.0 * m.uv(0, 1.0, 0.0));
+        assert!(m.scaled(1e30).is_err());
     }
 
     #[test]

@@ -41,7 +41,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressStyle};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
@@ -173,6 +172,64 @@ impl RenderSettings {
             return bad("env_samples/light_samples must be <= 65536".into());
         }
         Ok(())
+    }
+}
+
+/// Peak memory of the pixel pass per pixel: each tile's radiance and the
+/// image they are gathered into (f32 RGB each).
+const BYTES_PER_PIXEL: u64 = 24;
+/// Memory per surface sample: its position, normal, triangle, area and
+/// irradiance, the octree nodes over it and the Poisson disk's candidates.
+const BYTES_PER_SURFACE_SAMPLE: u64 = 256;
+
+impl RenderSettings {
+    /// Memory the render itself will take, bytes: the image and the
+    /// surface samples (the mesh and the material are loaded already).
+    pub fn memory_estimate(&self) -> u64 {
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        let samples = if self.mode.has_global() {
+            self.surface_samples as u64
+        } else {
+            0
+        };
+        pixels * BYTES_PER_PIXEL + samples * BYTES_PER_SURFACE_SAMPLE
+    }
+
+    /// The memory estimate, refused when it exceeds `available` bytes
+    /// (None: unknown, nothing is refused).
+    pub fn check_memory(&self, available: Option<u64>) -> Result<u64, RenderError> {
+        let need = self.memory_estimate();
+        match available {
+            Some(free) if need > free => Err(RenderError::Settings(format!(
+                "{} x {} pixels with {} surface samples need about {}, but only {} of memory is \
+                 available; lower --width/--height or --samples",
+                self.width,
+                self.height,
+                self.surface_samples,
+                human_bytes(need),
+                human_bytes(free)
+            ))),
+            _ => Ok(need),
+        }
+    }
+}
+
+/// Memory the system can give without swapping (Linux `MemAvailable`).
+pub fn available_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// `1.5 GiB`, `24 MiB`.
+pub fn human_bytes(b: u64) -> String {
+    const MIB: f64 = 1024.0 * 1024.0;
+    let mib = b as f64 / MIB;
+    if mib >= 1024.0 {
+        format!("{:.1} GiB", mib / 1024.0)
+    } else {
+        format!("{:.0} MiB", mib.max(1.0))
     }
 }
 
@@ -416,16 +473,8 @@ where
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
-    let bar = if settings.progress {
-        let b = ProgressBar::new(tiles.len() as u64);
-        b.set_style(
-            ProgressStyle::with_template("rendering {bar:40} {pos}/{len} tiles {elapsed}<{eta}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b
-    } else {
-        ProgressBar::hidden()
-    };
+    // A bar on a terminal, a line every few seconds in a log.
+    let bar = qhm_progress::Bar::new("render tiles", tiles.len() as u64, !settings.progress);
     let m = (settings.spp as f32).sqrt().ceil() as u32;
     let n_cam = m * m;
     let results: Vec<(u32, u32, Vec<Vec3>, QueryStats, u64)> = tiles
@@ -470,7 +519,7 @@ where
             (x0, y0, out, qs, queries)
         })
         .collect();
-    bar.finish_and_clear();
+    bar.finish();
     let mut img = Image::new(w, h);
     let (mut queries, mut terms) = (0, 0);
     for (x0, y0, px, qs, q) in results {
@@ -632,5 +681,33 @@ pub fn relative_rms(a: &[Vec3], b: &[Vec3]) -> f64 {
         (num / den).sqrt()
     } else {
         num.sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn memory_estimate_counts_pixels_and_samples_and_refuses_what_is_not_there() {
+        let s = RenderSettings {
+            width: 16384,
+            height: 16384,
+            ..RenderSettings::default()
+        };
+        let need = s.memory_estimate();
+        assert_eq!(need, 16384 * 16384 * 24 + 30_000 * 256);
+        assert_eq!(human_bytes(need), "6.0 GiB");
+        assert_eq!(s.check_memory(None).unwrap(), need);
+        assert_eq!(s.check_memory(Some(need)).unwrap(), need);
+        let e = s.check_memory(Some(4 << 30)).unwrap_err().to_string();
+        assert!(e.contains("need about 6.0 GiB, but only 4.0 GiB"), "{e}");
+        assert!(e.contains("--width/--height"), "{e}");
+        // lrf-only has no surface samples.
+        let lrf = RenderSettings {
+            mode: Mode::LrfOnly,
+            ..s
+        };
+        assert_eq!(lrf.memory_estimate(), 16384 * 16384 * 24);
     }
 }

@@ -2,10 +2,14 @@
 //! environment map; built-in scenes; and the scene TOML (`--scene`), whose
 //! every table is optional and overrides the defaults:
 //!
+//! Omitted keys keep their defaults, in a table too: `[camera]` with
+//! only `fov_deg` frames the object from the default direction.
+//!
 //! ```toml
 //! [camera]                      # mm, z up
-//! eye = [0, -200, 120]
-//! target = [0, 0, 20]
+//! eye = [0, -200, 120]          # default: framing the object from the front left
+//! target = [0, 0, 20]           # default: the object's bounding-box centre
+//! up = [0, 0, 1]
 //! fov_deg = 30
 //!
 //! [[lights]]                    # any number
@@ -22,8 +26,10 @@
 //! visible = true                # seen as background
 //!
 //! [object]
-//! scale = 1.0                   # mm per mesh-file unit
-//! uv_scale_mm = 40              # mm per file UV unit (default: bbox diagonal)
+//! scale = 1.0                   # mm per mesh-file (or built-in) unit; the object
+//!                               # must come out 0.001 mm to 1e7 mm across
+//! uv_scale_mm = 40              # mm per file UV unit (default: bbox diagonal);
+//!                               # mesh files only
 //!
 //! [render]                      # see RenderSettings
 //! mode = "full"                 # full | lrf-only | lrf-dipole | dipole-only
@@ -104,9 +110,17 @@ impl Scene {
 
 /// A camera looking at the box from the front-left and above.
 pub fn frame_camera(lo: Vec3, hi: Vec3) -> Camera {
+    frame_camera_fov(lo, hi, DEFAULT_FOV_DEG.to_radians())
+}
+
+/// Vertical field of view of the default camera, degrees.
+pub const DEFAULT_FOV_DEG: f32 = 30.0;
+
+/// [`frame_camera`] with a vertical field of view of `fov` radians: the
+/// eye as far as the box's bounding sphere needs to fill the view.
+pub fn frame_camera_fov(lo: Vec3, hi: Vec3, fov: f32) -> Camera {
     let c = (lo + hi) * 0.5;
     let r = (hi - lo).length() * 0.5;
-    let fov = 30f32.to_radians();
     let dist = r / (fov * 0.5).sin() * 1.05;
     let dir = Vec3::new(0.35, -1.0, 0.55).normalize();
     Camera::look_at(c + dir * dist, c, fov)
@@ -127,8 +141,8 @@ pub struct SceneFile {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraToml {
-    pub eye: [f32; 3],
-    pub target: [f32; 3],
+    pub eye: Option<[f32; 3]>,
+    pub target: Option<[f32; 3]>,
     pub up: Option<[f32; 3]>,
     pub fov_deg: Option<f32>,
 }
@@ -221,6 +235,19 @@ impl SceneFile {
         Ok(f)
     }
 
+    /// The scene of built-in object `name` with the default lighting, scaled
+    /// by the `[object]` table's scale (built-ins are in mm).
+    pub fn builtin_scene(&self, name: &str) -> Result<Scene, RenderError> {
+        let (scale, uv) = self.object()?;
+        if uv.is_some() {
+            return Err(RenderError::Scene(
+                "object.uv_scale_mm applies to mesh files (--mesh); a built-in object has its own surface coordinates in mm"
+                    .into(),
+            ));
+        }
+        Ok(Scene::lit(builtin_mesh(name)?.scaled(scale)?))
+    }
+
     /// The mesh scale and UV scale of the `[object]` table.
     pub fn object(&self) -> Result<(f32, Option<f32>), RenderError> {
         let o = self.object.as_ref();
@@ -228,7 +255,7 @@ impl SceneFile {
         let uv = o.and_then(|o| o.uv_scale_mm);
         if !(scale.is_finite() && scale > 0.0) {
             return Err(RenderError::Scene(format!(
-                "object.scale {scale} must be > 0"
+                "object.scale {scale} must be a number > 0"
             )));
         }
         if let Some(u) = uv
@@ -245,17 +272,30 @@ impl SceneFile {
     /// the file replace the scene's; an `[env]` table replaces its env map).
     pub fn apply_scene(&self, scene: &mut Scene) -> Result<(), RenderError> {
         if let Some(c) = &self.camera {
-            let fov = c.fov_deg.unwrap_or(30.0);
+            let fov = c.fov_deg.unwrap_or(DEFAULT_FOV_DEG);
             if !(fov > 0.5 && fov < 179.0) {
                 return Err(RenderError::Scene(format!(
                     "camera.fov_deg {fov} out of (0.5, 179)"
                 )));
             }
+            let fov_y = fov * PI / 180.0;
+            // What is not given comes from the default framing at this fov;
+            // a target alone keeps the default viewing direction and distance.
+            let (lo, hi) = scene.mesh.bounds();
+            let framed = frame_camera_fov(lo, hi, fov_y);
+            let target = match c.target {
+                Some(t) => vec3(t, "camera.target")?,
+                None => framed.target,
+            };
+            let eye = match c.eye {
+                Some(e) => vec3(e, "camera.eye")?,
+                None => target + (framed.eye - framed.target),
+            };
             scene.camera = Camera {
-                eye: vec3(c.eye, "camera.eye")?,
-                target: vec3(c.target, "camera.target")?,
+                eye,
+                target,
                 up: unit(c.up.unwrap_or([0.0, 0.0, 1.0]), "camera.up")?,
-                fov_y: fov * PI / 180.0,
+                fov_y,
             };
             if scene.camera.eye == scene.camera.target {
                 return Err(RenderError::Scene("camera.eye equals camera.target".into()));
@@ -386,6 +426,48 @@ mod tests {
         let mut s = RenderSettings::default();
         f.apply_settings(&mut s).unwrap();
         assert_eq!((s.width, s.height, s.mode), (64, 48, Mode::LrfOnly));
+    }
+
+    #[test]
+    fn a_camera_table_without_eye_or_target_takes_the_defaults() {
+        let mut scene = Scene::builtin("sphere").unwrap();
+        let default = scene.camera.clone();
+        let f = SceneFile::parse("[camera]\n", None).unwrap();
+        f.apply_scene(&mut scene).unwrap();
+        assert_eq!(scene.camera.eye, default.eye);
+        assert_eq!(scene.camera.target, default.target);
+        // A narrower view moves the eye back along the same direction.
+        let f = SceneFile::parse("[camera]\nfov_deg = 15", None).unwrap();
+        f.apply_scene(&mut scene).unwrap();
+        let (d0, d1) = (
+            default.eye - default.target,
+            scene.camera.eye - scene.camera.target,
+        );
+        assert!(d1.length() > 1.9 * d0.length(), "{d0} {d1}");
+        assert!(d1.normalize().dot(d0.normalize()) > 0.9999);
+        // A target alone keeps the default offset of the eye from it.
+        let f = SceneFile::parse("[camera]\ntarget = [0, 0, 50]", None).unwrap();
+        f.apply_scene(&mut scene).unwrap();
+        assert_eq!(scene.camera.target, Vec3::new(0.0, 0.0, 50.0));
+        assert!(((scene.camera.eye - scene.camera.target) - d0).length() < 1e-3);
+    }
+
+    #[test]
+    fn object_scale_is_checked_and_applied_for_built_ins() {
+        for (text, needle) in [
+            ("[object]\nscale = 0", "object.scale 0 must be a number > 0"),
+            ("[object]\nscale = -1", "object.scale -1 must be"),
+            ("[object]\nscale = nan", "object.scale NaN must be"),
+            ("[object]\nscale = 1e30", "out of range"),
+            ("[object]\nuv_scale_mm = 5", "mesh files"),
+        ] {
+            let f = SceneFile::parse(text, None).unwrap();
+            let e = f.builtin_scene("slab").err().expect(text).to_string();
+            assert!(e.contains(needle), "{text}: {e}");
+        }
+        let f = SceneFile::parse("[object]\nscale = 2", None).unwrap();
+        let (lo, hi) = f.builtin_scene("slab").unwrap().mesh.bounds();
+        assert!(((hi - lo).x - 120.0).abs() < 1e-3, "{lo} {hi}");
     }
 
     #[test]

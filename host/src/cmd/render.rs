@@ -137,7 +137,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
             // Default lighting as for built-ins; the scene file may replace it.
             Scene::lit(mesh)
         }
-        (None, Some(name)) => Scene::builtin(name)?,
+        (None, Some(name)) => file.builtin_scene(name)?,
         _ => bail!("give --mesh FILE or --builtin NAME"),
     };
     file.apply_scene(&mut scene)?;
@@ -153,6 +153,19 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
     settings.seed = args.seed.unwrap_or(settings.seed);
     settings.progress = !args.quiet;
     settings.validate()?;
+    // Before anything is allocated: a render larger than the free memory
+    // is refused, and a large one says what it will take.
+    let need = settings.check_memory(qhm_render::render::available_memory())?;
+    if !args.quiet && (need >= 1 << 30 || args.bench) {
+        eprintln!(
+            "qhm render: {} x {} pixels, {} spp, {} surface samples: about {} of memory",
+            settings.width,
+            settings.height,
+            settings.spp,
+            settings.surface_samples,
+            qhm_render::render::human_bytes(need)
+        );
+    }
     if let Some(e) = args.exposure
         && !(e.is_finite() && e > 0.0)
     {
