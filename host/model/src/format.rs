@@ -320,13 +320,7 @@ impl MaterialModel {
             .expand(),
             other => return Err(bad(format!("lrf: unknown encoding `{other}` (raw, pca)"))),
         };
-        let fpath = dir.join("fit.json");
-        let diagnostics = if fpath.is_file() {
-            let t = std::fs::read_to_string(&fpath).map_err(|e| ModelError::io(&fpath, e))?;
-            Some(serde_json::from_str(&t).map_err(|e| ModelError::invalid(&fpath, e.to_string()))?)
-        } else {
-            None
-        };
+        let diagnostics = read_diagnostics(dir);
         let model = MaterialModel {
             dipole,
             entrance,
@@ -438,6 +432,28 @@ fn safe_join(dir: &Path, name: &str) -> Option<PathBuf> {
         return None;
     }
     Some(dir.join(p))
+}
+
+/// The optional fit.json. Only the report reads it, and rendering needs
+/// only the manifest and the EXRs, so a broken one is a warning: the model
+/// loads without diagnostics.
+fn read_diagnostics(dir: &Path) -> Option<FitDiagnostics> {
+    let path = dir.join("fit.json");
+    if !path.exists() {
+        return None;
+    }
+    let parsed = std::fs::read_to_string(&path)
+        .map_err(|e| ModelError::io(&path, e))
+        .and_then(|t| {
+            serde_json::from_str(&t).map_err(|e| ModelError::invalid(&path, e.to_string()))
+        });
+    match parsed {
+        Ok(d) => Some(d),
+        Err(e) => {
+            tracing::warn!("{e}; the model is read without its fit diagnostics");
+            None
+        }
+    }
 }
 
 /// Writes just the diagnostics (used by the fit after the model is saved).
