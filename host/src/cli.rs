@@ -43,6 +43,8 @@ pub enum Command {
     Fit(cmd::fit::FitArgs),
     /// Plots and an HTML page of a material model and its fit.
     Report(cmd::report::ReportArgs),
+    /// A local web page to relight a material model on a mesh: qhm view MODEL_DIR [--port 8080] [--open].
+    View(cmd::view::ViewArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -59,5 +61,6 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::FitProfile(args) => cmd::fit::run_profile(args),
         Command::Fit(args) => cmd::fit::run_fit(args),
         Command::Report(args) => cmd::report::run(args),
+        Command::View(args) => cmd::view::run(args),
     }
 }

@@ -10,3 +10,4 @@ pub mod report;
 pub mod rig;
 pub mod sim;
 pub mod simpty;
+pub mod view;

@@ -67,7 +67,7 @@ pub struct RenderArgs {
     pub quiet: bool,
 }
 
-fn load_model(spec: &str) -> anyhow::Result<(String, MaterialModel)> {
+pub(crate) fn load_model(spec: &str) -> anyhow::Result<(String, MaterialModel)> {
     if let Some(name) = spec.strip_prefix("builtin:") {
         let Some(d) = preset(name) else {
             bail!(
