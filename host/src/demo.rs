@@ -13,7 +13,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressStyle};
 use qhm_acquire::plan::Step;
 use qhm_acquire::{
     CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, Scale, SimRig, SimRigConfig,
@@ -22,8 +21,9 @@ use qhm_acquire::{
 use qhm_imaging::Calibration;
 use qhm_imaging::pipeline::rectify_capture;
 use qhm_imaging::sim_cal::SimCalibrator;
-use qhm_model::fit::{FitOptions, fit_capture};
+use qhm_model::fit::{FitOptions, fit_capture_with_progress};
 use qhm_model::{DipoleParams, MaterialModel};
+use qhm_progress::Bar;
 use qhm_render::light::{EnvMap, Light};
 use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
@@ -162,34 +162,20 @@ impl Stages {
     }
 }
 
-fn bar(quiet: bool, len: u64) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let b = ProgressBar::new(len);
-    b.set_style(
-        ProgressStyle::with_template(
-            "   [{elapsed_precise}] {bar:40} {pos}/{len} {msg} (eta {eta})",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    b
-}
-
-struct CaptureBar(ProgressBar);
+/// The capture's progress on a [`Bar`] (a plain line every few seconds when
+/// stderr is not a terminal).
+struct CaptureBar(Bar);
 
 impl Progress for CaptureBar {
     fn start(&mut self, total: usize, done: usize) {
-        self.0.set_length(total as u64);
-        self.0.set_position(done as u64);
-        self.0.reset_eta();
+        self.0.start(total as u64, done as u64);
     }
     fn frame(&mut self, step: &Step, done: usize) {
+        self.0.set_message(&format!("pass {}", step.pass.number()));
         self.0.set_position(done as u64);
-        self.0.set_message(format!("pass {}", step.pass.number()));
     }
     fn note(&mut self, message: &str) {
-        self.0.println(format!("   {message}"));
+        self.0.println(&format!("   {message}"));
     }
 }
 
@@ -302,7 +288,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                 .await
                 .context("starting the simulated rig")?;
             let mut operator = rig.handle.operator();
-            let mut progress = CaptureBar(bar(opts.quiet, 0));
+            let mut progress = CaptureBar(Bar::new("capture", 0, opts.quiet));
             let report = run_capture(
                 &rig.link,
                 &mut rig.cameras,
@@ -312,7 +298,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                 &mut progress,
             )
             .await?;
-            progress.0.finish_and_clear();
+            progress.0.finish();
             if !report.complete {
                 bail!("the capture stopped before the end of the plan");
             }
@@ -330,7 +316,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                 "   note: cameras {skipped:?} were not found in calibration; their frames are left out"
             );
         }
-        let b = bar(opts.quiet, shots.len() as u64);
+        let b = Bar::new("rectify", shots.len() as u64, opts.quiet);
         rectify_capture(
             &shots,
             &cal,
@@ -338,7 +324,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             &capture.join("rectified"),
             &|done, _| b.set_position(done as u64),
         )?;
-        b.finish_and_clear();
+        b.finish();
         Ok(())
     })?;
 
@@ -349,7 +335,14 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             eta,
             ..FitOptions::default()
         };
-        let (model, _timings) = fit_capture(&capture, &fit_opts)?;
+        let b = Bar::new("fit", 0, opts.quiet);
+        let (model, _timings) = fit_capture_with_progress(&capture, &fit_opts, &|done, total| {
+            if done == 1 {
+                b.start(total as u64, 0);
+            }
+            b.set_position(done as u64)
+        })?;
+        b.finish();
         model.save(&model_dir)?;
         Ok(model)
     })?;
@@ -361,6 +354,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             let renders_dir = out.join("renders");
             std::fs::create_dir_all(&renders_dir)?;
             let settings = render_settings(opts.scale);
+            let b = Bar::new("render", 6, opts.quiet);
             for object in ["teapot", "bread"] {
                 let base = Scene::builtin(object)?;
                 for (light_name, lights, env) in lightings(&base) {
@@ -372,21 +366,34 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                     let stem = format!("{object}-{light_name}");
                     img.write_exr(&renders_dir.join(format!("{stem}.exr")))?;
                     img.write_png(&renders_dir.join(format!("{stem}.png")), None)?;
-                    if !opts.quiet {
-                        eprintln!("   {stem}: {:.1} s", stats.secs_total);
-                    }
+                    b.println(&format!("   {stem}: {:.1} s", stats.secs_total));
+                    b.inc(1);
                     renders.push(format!("renders/{stem}.png"));
                 }
             }
+            b.finish();
             Ok(())
         })?;
     }
 
-    // 6. The report: fit plot, f(w_i), f_v and LRF mosaics.
+    // 6. The report: fit plot, f(w_i), f_v and LRF mosaics, the stage times so far.
+    let report_opts = qhm_model::report::ReportOptions {
+        stages: stages
+            .times
+            .iter()
+            .map(|t| (t.stage.clone(), t.seconds))
+            .collect(),
+        ..Default::default()
+    };
     stages.run("report", || {
         // From the files on disk, as `qhm report` would: checks they are whole.
         let saved = reload_model(out)?;
-        qhm_model::report::write_report(&saved, &model_dir, &out.join("report"))?;
+        qhm_model::report::write_report_with(
+            &saved,
+            &model_dir,
+            &out.join("report"),
+            &report_opts,
+        )?;
         Ok(())
     })?;
 

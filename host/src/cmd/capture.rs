@@ -9,13 +9,13 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
 use qhm_acquire::plan::Step;
 use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
 use qhm_acquire::{
     Camera, CaptureDir, ConsoleOperator, DirError, Manifest, Operator, Plan, PlanConfig, Progress,
     RunOptions, Scale, SimRig, run_capture, safe_off,
 };
+use qhm_progress::Bar;
 
 #[derive(Args, Debug)]
 pub struct CaptureArgs {
@@ -183,21 +183,20 @@ fn plan(scale: &str, json: bool) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Progress bars: frames done, with the ETA.
+/// Progress: frames done, with the ETA (a bar on a terminal, a plain line
+/// every few seconds otherwise).
 struct Bars {
-    bar: ProgressBar,
+    bar: Bar,
 }
 
 impl Progress for Bars {
     fn start(&mut self, total: usize, done: usize) {
-        self.bar.set_length(total as u64);
-        self.bar.set_position(done as u64);
-        self.bar.reset_eta();
+        self.bar.start(total as u64, done as u64);
     }
     fn frame(&mut self, step: &Step, done: usize) {
-        self.bar.set_position(done as u64);
         self.bar
-            .set_message(format!("pass {} step {}", step.pass.number(), step.index));
+            .set_message(&format!("pass {} step {}", step.pass.number(), step.index));
+        self.bar.set_position(done as u64);
     }
     fn note(&mut self, message: &str) {
         self.bar.println(message);
@@ -276,19 +275,9 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         Some(r) => &mut r.cameras,
         None => &mut real_cameras,
     };
-    let bar = if a.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(0)
+    let mut bars = Bars {
+        bar: Bar::new("capture", 0, a.quiet),
     };
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:40}] {pos}/{len} frames  ETA {eta_precise}  {msg}",
-        )
-        .expect("static template")
-        .progress_chars("=> "),
-    );
-    let mut bars = Bars { bar: bar.clone() };
     let run = run_capture(
         &link,
         cameras,
@@ -301,7 +290,7 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         r = run => Some(r),
         _ = tokio::signal::ctrl_c() => None,
     };
-    bar.finish_and_clear();
+    bars.bar.finish();
     match outcome {
         None => {
             safe_off(&link).await;

@@ -70,13 +70,13 @@ pub fn run(args: RectifyArgs) -> anyhow::Result<ExitCode> {
     if shots.is_empty() {
         bail!("no camera of the capture has a geometric calibration");
     }
-    let bar = indicatif::ProgressBar::new(shots.len() as u64);
+    let bar = qhm_progress::Bar::new("rectify", shots.len() as u64, false);
     let out = root.join("rectified");
     let idx = rectify_capture(&shots, &cal, &opts, &out, &|done, _| {
         bar.set_position(done as u64)
     })
     .with_context(|| format!("rectifying {}", root.display()))?;
-    bar.finish_and_clear();
+    bar.finish();
     println!(
         "{}: {} stripe and {} lamp images, {}x{} texels of {:.3} mm (sample {:?}) -> {}",
         root.display(),
