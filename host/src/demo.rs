@@ -29,6 +29,7 @@ use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
 use serde::Serialize;
 
+use crate::output::{OutputKind, StagedDir};
 use crate::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};
 
 /// What to run.
@@ -100,8 +101,20 @@ pub fn reference(sample: &str) -> Option<Reference> {
     })
 }
 
-/// Refuses a non-empty output directory unless `force`; with `force` removes
-/// only what a previous demo wrote there.
+/// What a demo writes into its output directory; `--force` removes these
+/// (whole, with anything inside them) and nothing else.
+pub const DEMO_PARTS: [&str; 6] = [
+    "calibration.toml",
+    "capture",
+    "model",
+    "renders",
+    "report",
+    "summary.json",
+];
+
+/// Refuses a non-empty output directory unless `force`, and a non-empty one
+/// holding none of a demo's parts even then; with `force` removes only what a
+/// previous demo wrote there.
 fn prepare_out(out: &Path, force: bool) -> Result<()> {
     if out.exists() {
         if !out.is_dir() {
@@ -111,20 +124,19 @@ fn prepare_out(out: &Path, force: bool) -> Result<()> {
             .with_context(|| format!("reading {}", out.display()))?
             .next()
             .is_some();
-        if non_empty && !force {
+        if non_empty && !DEMO_PARTS.iter().any(|p| out.join(p).exists()) {
             bail!(
-                "{} is not empty; pass --force to overwrite it",
+                "{} is not empty and holds no qhm demo output; refusing to write into it (choose an empty or new directory)",
                 out.display()
             );
         }
-        for part in [
-            "calibration.toml",
-            "capture",
-            "model",
-            "renders",
-            "report",
-            "summary.json",
-        ] {
+        if non_empty && !force {
+            bail!(
+                "{} holds an earlier demo; pass --force to replace it",
+                out.display()
+            );
+        }
+        for part in DEMO_PARTS {
             let p = out.join(part);
             if p.is_dir() {
                 std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
@@ -388,12 +400,10 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     stages.run("report", || {
         // From the files on disk, as `qhm report` would: checks they are whole.
         let saved = reload_model(out)?;
-        qhm_model::report::write_report_with(
-            &saved,
-            &model_dir,
-            &out.join("report"),
-            &report_opts,
-        )?;
+        // Staged, so the report carries the marker `qhm report --force` recognises.
+        let staged = StagedDir::begin(&out.join("report"), OutputKind::Report, true)?;
+        qhm_model::report::write_report_with(&saved, &model_dir, staged.path(), &report_opts)?;
+        staged.commit()?;
         Ok(())
     })?;
 

@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::plan::{Plan, PlanConfig, PlanError};
+use crate::plan::{Plan, PlanConfig, PlanError, Scale};
 
 /// Value of `format` in capture.toml.
 pub const FORMAT: &str = "qhm-capture";
@@ -64,6 +64,56 @@ impl Manifest {
             plan: plan.config.clone(),
         }
     }
+
+    /// Reads `root/capture.toml` (only reads: nothing is locked or repaired).
+    pub fn read(root: &Path) -> Result<Manifest, DirError> {
+        let mpath = root.join(MANIFEST);
+        let text = fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
+        toml::from_str(&text).map_err(|e| DirError::BadManifest {
+            path: mpath,
+            why: e.to_string(),
+        })
+    }
+
+    /// The named scale whose plan this manifest holds, if any.
+    pub fn scale(&self) -> Option<Scale> {
+        Scale::ALL.into_iter().find(|&s| {
+            Plan::new(PlanConfig::for_scale(s)).is_ok_and(|p| plan_sha256(&p) == self.plan_sha256)
+        })
+    }
+
+    /// The `qhm capture run` arguments that name this capture: rig, scale,
+    /// sample and seed (a real rig's `--camera` and `--baud` are not recorded).
+    pub fn run_args(&self) -> String {
+        let rig = match self.rig.strip_prefix("serial:") {
+            Some(port) => format!("--port {}", shell_word(port)),
+            None if self.rig == "sim" => "--sim".into(),
+            // Not written by `qhm capture run`: name the choice to make.
+            None => "--sim|--port DEVICE".into(),
+        };
+        let scale = self
+            .scale()
+            .map_or("(a plan of no named scale)".into(), |s| {
+                format!("--scale {}", s.name())
+            });
+        format!(
+            "{rig} {scale} --sample {} --seed {}",
+            shell_word(&self.sample),
+            self.seed
+        )
+    }
+}
+
+/// `w` quoted for a POSIX shell if it needs it.
+pub fn shell_word(w: &str) -> String {
+    let plain = !w.is_empty()
+        && w.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./:=+,@%".contains(c));
+    if plain {
+        w.to_string()
+    } else {
+        format!("'{}'", w.replace('\'', "'\\''"))
+    }
 }
 
 /// sha256 of the plan's steps as JSON.
@@ -98,8 +148,17 @@ pub enum DirError {
     )]
     Exists(PathBuf),
     /// `--resume` on a directory captured with other settings.
-    #[error("{path}: cannot resume: the directory was captured with a different {what}")]
-    Mismatch { path: PathBuf, what: String },
+    #[error(
+        "{path}: cannot resume: the directory was captured with a different {what} ({stored}; this run asked for {asked})"
+    )]
+    Mismatch {
+        path: PathBuf,
+        what: String,
+        /// The directory's value, e.g. `--scale ci`.
+        stored: String,
+        /// This run's value.
+        asked: String,
+    },
     /// The journal is damaged beyond a torn last line.
     #[error("{path}: journal line {line}: {why}")]
     CorruptJournal {
@@ -161,17 +220,87 @@ fn unseal(line: &str) -> Option<&str> {
 }
 
 impl CaptureDir {
-    /// Creates a new capture in `root` (absent or empty).
-    pub fn create(root: &Path, manifest: Manifest) -> Result<CaptureDir, DirError> {
-        if root.exists() {
-            let mut entries = fs::read_dir(root).map_err(io_err(root))?;
-            if entries.next().is_some() {
-                return Err(if root.join(MANIFEST).exists() {
-                    DirError::Exists(root.to_path_buf())
-                } else {
-                    DirError::Foreign(root.to_path_buf())
-                });
+    /// Checks that [`CaptureDir::create`] would accept `root`, without
+    /// touching anything (so a run can refuse before it starts the rig).
+    pub fn check_new(root: &Path) -> Result<(), DirError> {
+        if !root.exists() || Self::is_unstarted(root)? {
+            return Ok(());
+        }
+        let mut entries = fs::read_dir(root).map_err(io_err(root))?;
+        if entries.next().is_none() {
+            return Ok(());
+        }
+        Err(if root.join(MANIFEST).exists() {
+            DirError::Exists(root.to_path_buf())
+        } else {
+            DirError::Foreign(root.to_path_buf())
+        })
+    }
+
+    /// Whether `root` holds a capture that never journaled a frame (a run
+    /// that failed or was stopped before its first frame) and nothing else:
+    /// such a directory is replaced by a new run, whatever its settings.
+    pub fn is_unstarted(root: &Path) -> Result<bool, DirError> {
+        if !root.join(MANIFEST).is_file() || !root.join(JOURNAL).is_file() {
+            return Ok(false);
+        }
+        for e in fs::read_dir(root).map_err(io_err(root))? {
+            let name = e.map_err(io_err(root))?.file_name();
+            if name != MANIFEST && name != JOURNAL && name != "frames" {
+                return Ok(false);
             }
+        }
+        if !only_temporaries(&root.join("frames"))? {
+            return Ok(false);
+        }
+        let jpath = root.join(JOURNAL);
+        let raw = fs::read(&jpath).map_err(io_err(&jpath))?;
+        let text = String::from_utf8_lossy(&raw);
+        // Any line that is not the sealed header (a frame, a torn frame,
+        // damage) makes it a capture worth keeping.
+        Ok(text
+            .lines()
+            .all(|l| unseal(l).is_some_and(|body| body.starts_with("qhm-journal "))))
+    }
+
+    /// Removes an unstarted capture (see [`CaptureDir::is_unstarted`]),
+    /// unless a run holds it.
+    fn remove_unstarted(root: &Path) -> Result<(), DirError> {
+        let jpath = root.join(JOURNAL);
+        let journal = File::open(&jpath).map_err(io_err(&jpath))?;
+        lock(&journal, root)?;
+        let frames = root.join("frames");
+        if frames.exists() {
+            fs::remove_dir_all(&frames).map_err(io_err(&frames))?;
+        }
+        fs::remove_file(root.join(MANIFEST)).map_err(io_err(root))?;
+        fs::remove_file(&jpath).map_err(io_err(&jpath))?;
+        Ok(())
+    }
+
+    /// Removes this capture's files if it never journaled a frame (a run
+    /// that failed before its first frame leaves nothing behind); returns
+    /// whether it did. The directory itself is removed only if then empty.
+    pub fn discard_if_unstarted(self) -> Result<bool, DirError> {
+        let root = self.root.clone();
+        if !self.frames.is_empty() {
+            return Ok(false);
+        }
+        drop(self); // releases the journal lock
+        if !Self::is_unstarted(&root)? {
+            return Ok(false);
+        }
+        Self::remove_unstarted(&root)?;
+        let _ = fs::remove_dir(&root);
+        Ok(true)
+    }
+
+    /// Creates a new capture in `root` (absent, empty, or holding an
+    /// unstarted capture, which it replaces).
+    pub fn create(root: &Path, manifest: Manifest) -> Result<CaptureDir, DirError> {
+        Self::check_new(root)?;
+        if Self::is_unstarted(root)? {
+            Self::remove_unstarted(root)?;
         }
         fs::create_dir_all(root.join("frames")).map_err(io_err(root))?;
         let text = toml::to_string(&manifest).map_err(|e| DirError::BadManifest {
@@ -219,11 +348,7 @@ impl CaptureDir {
                 DirError::Foreign(root.to_path_buf())
             });
         }
-        let text = fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
-        let manifest: Manifest = toml::from_str(&text).map_err(|e| DirError::BadManifest {
-            path: mpath.clone(),
-            why: e.to_string(),
-        })?;
+        let manifest = Manifest::read(root)?;
         if manifest.format != FORMAT || manifest.version != VERSION {
             return Err(DirError::BadManifest {
                 path: mpath,
@@ -241,18 +366,37 @@ impl CaptureDir {
             });
         }
         if let Some(want) = expect {
-            for (what, same) in [
-                ("plan", want.plan_sha256 == manifest.plan_sha256),
-                ("seed", want.seed == manifest.seed),
-                ("sample", want.sample == manifest.sample),
-                ("rig", want.rig == manifest.rig),
-            ] {
-                if !same {
-                    return Err(DirError::Mismatch {
-                        path: root.to_path_buf(),
-                        what: what.into(),
-                    });
-                }
+            let scale = |m: &Manifest| {
+                m.scale().map_or("a plan of no named scale".into(), |s| {
+                    format!("--scale {}", s.name())
+                })
+            };
+            let mismatch = if want.plan_sha256 != manifest.plan_sha256 {
+                Some(("plan", scale(&manifest), scale(want)))
+            } else if want.seed != manifest.seed {
+                Some((
+                    "seed",
+                    format!("--seed {}", manifest.seed),
+                    format!("--seed {}", want.seed),
+                ))
+            } else if want.sample != manifest.sample {
+                Some((
+                    "sample",
+                    format!("--sample {}", shell_word(&manifest.sample)),
+                    format!("--sample {}", shell_word(&want.sample)),
+                ))
+            } else if want.rig != manifest.rig {
+                Some(("rig", manifest.rig.clone(), want.rig.clone()))
+            } else {
+                None
+            };
+            if let Some((what, stored, asked)) = mismatch {
+                return Err(DirError::Mismatch {
+                    path: root.to_path_buf(),
+                    what: what.into(),
+                    stored,
+                    asked,
+                });
             }
         }
         let jpath = root.join(JOURNAL);
@@ -318,7 +462,19 @@ impl CaptureDir {
                         .steps
                         .get(key.0 as usize)
                         .ok_or_else(|| corrupt(n, "step beyond the plan"))?;
-                    if key.0 != self.steps_done || *path != step.frame_path(key.1 as usize, key.2) {
+                    // Frames of a step come trigger by trigger, cameras in
+                    // the step's order (as run_step writes them).
+                    let nth = self
+                        .frames
+                        .range((key.0, 0, 0)..=(key.0, u32::MAX, u8::MAX))
+                        .count();
+                    let cams = &step.cameras;
+                    let next = (!cams.is_empty() && nth < step.frames())
+                        .then(|| ((nth / cams.len()) as u32, cams[nth % cams.len()]));
+                    if key.0 != self.steps_done
+                        || next != Some((key.1, key.2))
+                        || *path != step.frame_path(key.1 as usize, key.2)
+                    {
                         return Err(corrupt(n, "frame out of plan order"));
                     }
                     let rec = FrameRecord {
@@ -456,6 +612,25 @@ impl CaptureDir {
     }
 }
 
+/// Whether `dir` (if it exists) holds no files but `*.tmp` ones.
+fn only_temporaries(dir: &Path) -> Result<bool, DirError> {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return Ok(!dir.exists());
+    };
+    for e in entries {
+        let path = e.map_err(io_err(dir))?.path();
+        let ok = if path.is_dir() {
+            only_temporaries(&path)?
+        } else {
+            path.extension().is_some_and(|x| x == "tmp")
+        };
+        if !ok {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
 /// Deletes `*.tmp` files a crash left mid-write (never a journaled frame).
 fn remove_temporaries(dir: &Path) -> Result<(), DirError> {
     let Ok(entries) = fs::read_dir(dir) else {
@@ -546,6 +721,89 @@ mod tests {
     }
 
     #[test]
+    fn unstarted_capture_is_replaced_started_one_is_not() {
+        let (tmp, plan, m) = setup();
+        let root = tmp.path().join("cap");
+        drop(CaptureDir::create(&root, m.clone()).unwrap());
+        assert!(CaptureDir::is_unstarted(&root).unwrap());
+        // Another sample and seed: still replaced, it holds no frame.
+        let other = Manifest::new("sim", "sponge", 9, &plan);
+        let d = CaptureDir::create(&root, other.clone()).unwrap();
+        assert_eq!(d.manifest().sample, "sponge");
+        // Held by a run: not replaced.
+        assert!(matches!(
+            CaptureDir::create(&root, m.clone()),
+            Err(DirError::Locked(_))
+        ));
+        assert!(d.discard_if_unstarted().unwrap());
+        assert!(!root.exists(), "a run without frames leaves nothing");
+        // One frame journaled: kept.
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        let step = &plan.steps[0];
+        let c = step.cameras[0];
+        d.write_frame((0, 0, c), &step.frame_path(0, c), b"f")
+            .unwrap();
+        assert!(!d.discard_if_unstarted().unwrap());
+        assert!(!CaptureDir::is_unstarted(&root).unwrap());
+        assert!(matches!(
+            CaptureDir::create(&root, other),
+            Err(DirError::Exists(_))
+        ));
+        // A user's file beside an unstarted capture: kept too.
+        let root2 = tmp.path().join("cap2");
+        drop(CaptureDir::create(&root2, m.clone()).unwrap());
+        fs::write(root2.join("notes.txt"), b"mine").unwrap();
+        assert!(!CaptureDir::is_unstarted(&root2).unwrap());
+        assert!(matches!(
+            CaptureDir::create(&root2, m),
+            Err(DirError::Exists(_))
+        ));
+    }
+
+    #[test]
+    fn swapped_frames_of_a_step_are_refused() {
+        let (tmp, plan, m) = setup();
+        let root = tmp.path().join("cap");
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        write_step(&mut d, &plan, 0);
+        drop(d);
+        let jpath = root.join(JOURNAL);
+        let text = fs::read_to_string(&jpath).unwrap();
+        let mut lines: Vec<&str> = text.lines().collect();
+        assert!(lines[1].starts_with("frame ") && lines[2].starts_with("frame "));
+        lines.swap(1, 2);
+        let swapped = lines.join("\n") + "\n";
+        fs::write(&jpath, &swapped).unwrap();
+        let e = CaptureDir::open(&root, Some(&m)).err().unwrap();
+        assert!(e.to_string().contains("out of plan order"), "{e}");
+        assert!(e.to_string().contains("line 2"), "{e}");
+        assert_eq!(fs::read_to_string(&jpath).unwrap(), swapped);
+    }
+
+    #[test]
+    fn mismatch_names_both_settings_and_run_args_resume() {
+        let (tmp, _plan, m) = setup();
+        let root = tmp.path().join("cap");
+        drop(CaptureDir::create(&root, m.clone()).unwrap());
+        let default = Plan::new(PlanConfig::for_scale(Scale::Default)).unwrap();
+        let asked = Manifest::new("sim", "marble", 7, &default);
+        let e = CaptureDir::open(&root, Some(&asked))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("different plan (--scale ci; this run asked for --scale default)"),
+            "{e}"
+        );
+        assert_eq!(m.run_args(), "--sim --scale ci --sample marble --seed 7");
+        let real = Manifest::new("serial:/dev/tty ACM0", "my sample.toml", 3, &default);
+        assert_eq!(
+            real.run_args(),
+            "--port '/dev/tty ACM0' --scale default --sample 'my sample.toml' --seed 3"
+        );
+    }
+
+    #[test]
     fn second_open_is_locked() {
         let (tmp, _plan, m) = setup();
         let root = tmp.path().join("cap");
@@ -613,7 +871,9 @@ mod tests {
             Err(DirError::Foreign(_))
         ));
         let root = tmp.path().join("cap");
-        drop(CaptureDir::create(&root, m.clone()).unwrap());
+        let mut d = CaptureDir::create(&root, m.clone()).unwrap();
+        write_step(&mut d, &plan, 0);
+        drop(d);
         assert!(matches!(
             CaptureDir::create(&root, m.clone()),
             Err(DirError::Exists(_))

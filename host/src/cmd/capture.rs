@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
+use qhm_acquire::dir::shell_word;
 use qhm_acquire::plan::Step;
 use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
 use qhm_acquire::{
@@ -203,6 +204,63 @@ impl Progress for Bars {
     }
 }
 
+/// The exact command that continues the capture in `a.out`: rig, scale,
+/// sample and seed from its capture.toml, a real rig's cameras and baud rate
+/// from this run.
+fn resume_command(m: &Manifest, a: &RunArgs) -> String {
+    let mut cmd = format!("qhm capture run {}", m.run_args());
+    if m.rig.starts_with("serial:") {
+        for c in &a.cameras {
+            cmd += &format!(" --camera {}", shell_word(c));
+        }
+        if a.baud != DEFAULT_BAUD {
+            cmd += &format!(" --baud {}", a.baud);
+        }
+    }
+    cmd + &format!(" --resume -o {}", shell_word(&a.out.to_string_lossy()))
+}
+
+/// A capture directory's refusal, with the command that resumes it where
+/// there is one to resume.
+fn dir_error(e: DirError, a: &RunArgs) -> anyhow::Error {
+    let hint = match &e {
+        DirError::Exists(_) | DirError::Mismatch { .. } => Manifest::read(&a.out)
+            .ok()
+            .map(|m| format!("; to continue it: `{}`", resume_command(&m, a))),
+        _ => None,
+    };
+    match hint {
+        Some(h) => anyhow::anyhow!("{e}{h}"),
+        None => anyhow::Error::new(e),
+    }
+}
+
+/// A real rig needs `--camera N=DEVICE` for every camera the plan fires.
+fn check_cameras_given(plan: &Plan, specs: &[String]) -> Result<()> {
+    let given: std::collections::BTreeSet<u8> = specs
+        .iter()
+        .filter_map(|s| s.split_once('=')?.0.trim().parse().ok())
+        .collect();
+    let needed: std::collections::BTreeSet<u8> = plan
+        .steps
+        .iter()
+        .flat_map(|s| s.cameras.iter().copied())
+        .collect();
+    let missing: Vec<String> = needed.difference(&given).map(|c| c.to_string()).collect();
+    if !missing.is_empty() {
+        bail!(
+            "the plan fires cameras {}; give --camera N=DEVICE for each (missing: {})",
+            needed
+                .iter()
+                .map(|c| c.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            missing.join(", ")
+        );
+    }
+    Ok(())
+}
+
 async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     let scale: Scale = a.scale.parse()?;
     if !(a.frame_timeout.is_finite() && a.frame_timeout > 0.0) {
@@ -214,25 +272,32 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         (Some(p), false) => format!("serial:{}", p.display()),
         (None, false) => bail!("say where the rig is: --sim or --port DEVICE"),
     };
-    let manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
-    // Refuse foreign, corrupt or mismatching directories before touching the rig.
-    let mut dir = if a.resume {
-        CaptureDir::open(&a.out, Some(&manifest))
-            .with_context(|| format!("cannot resume {}", a.out.display()))?
-    } else {
-        CaptureDir::create(&a.out, manifest).map_err(|e| match e {
-            DirError::Exists(_) => anyhow::anyhow!("{e}"),
-            e => anyhow::Error::new(e),
-        })?
-    };
-    if dir.is_complete() {
-        eprintln!(
-            "{}: capture already complete ({} frames)",
-            a.out.display(),
-            dir.frame_count()
-        );
-        return Ok(ExitCode::SUCCESS);
+    if a.port.is_some() {
+        check_cameras_given(&plan, &a.cameras)?;
     }
+    let manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
+    // Refuse foreign, corrupt or mismatching directories before touching the
+    // rig. A new capture's directory is made only once the rig and cameras
+    // are up, so a failed start leaves nothing; a capture that never took a
+    // frame is started anew, whatever it was asked to measure.
+    let resuming = a.resume && !CaptureDir::is_unstarted(&a.out).unwrap_or(false);
+    let opened = if resuming {
+        let d = CaptureDir::open(&a.out, Some(&manifest))
+            .map_err(|e| dir_error(e, &a))
+            .with_context(|| format!("cannot resume {}", a.out.display()))?;
+        if d.is_complete() {
+            eprintln!(
+                "{}: capture already complete ({} frames)",
+                a.out.display(),
+                d.frame_count()
+            );
+            return Ok(ExitCode::SUCCESS);
+        }
+        Some(d)
+    } else {
+        CaptureDir::check_new(&a.out).map_err(|e| dir_error(e, &a))?;
+        None
+    };
     let mut opts = RunOptions {
         frame_timeout: Duration::from_secs_f64(a.frame_timeout),
         ..RunOptions::default()
@@ -271,6 +336,10 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
             .with_context(|| format!("opening the rig on {}", port.display()))?;
         (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
     };
+    let mut dir = match opened {
+        Some(d) => d,
+        None => CaptureDir::create(&a.out, manifest).map_err(|e| dir_error(e, &a))?,
+    };
     let cameras: &mut [Box<dyn Camera>] = match sim_rig.as_mut() {
         Some(r) => &mut r.cameras,
         None => &mut real_cameras,
@@ -291,23 +360,31 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         _ = tokio::signal::ctrl_c() => None,
     };
     bars.bar.finish();
+    let resume = resume_command(dir.manifest(), &a);
+    let stopped = |dir: CaptureDir| -> Result<String> {
+        let n = dir.frame_count();
+        Ok(if dir.discard_if_unstarted()? {
+            format!(
+                "no frame was taken; {} is left as it was before",
+                a.out.display()
+            )
+        } else {
+            format!(
+                "{n} of {} frames are safely on disk; continue with `{resume}`",
+                plan.frames()
+            )
+        })
+    };
     match outcome {
         None => {
             safe_off(&link).await;
-            eprintln!(
-                "interrupted: {} of {} frames are safely on disk; continue with `qhm capture run --resume -o {}`",
-                dir.frame_count(),
-                plan.frames(),
-                a.out.display()
-            );
+            eprintln!("interrupted: {}", stopped(dir)?);
             Ok(ExitCode::from(130))
         }
-        Some(Err(e)) => Err(anyhow::Error::new(e).context(format!(
-            "capture stopped after {} of {} frames; continue with `qhm capture run --resume -o {}`",
-            dir.frame_count(),
-            plan.frames(),
-            a.out.display()
-        ))),
+        Some(Err(e)) => {
+            let why = stopped(dir)?;
+            Err(anyhow::Error::new(e).context(format!("capture stopped: {why}")))
+        }
         Some(Ok(report)) => {
             eprintln!(
                 "capture {}: {} frames written now, {} total, {} MCU resets recovered",

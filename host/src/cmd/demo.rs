@@ -17,10 +17,12 @@ pub struct DemoArgs {
     /// Capture scale: ci (about a minute), default (minutes), paper (hours; see README).
     #[arg(long, default_value = "default")]
     pub scale: String,
-    /// Output directory (refused if not empty, unless --force).
+    /// Output directory: new, empty, or (with --force) one an earlier demo wrote.
     #[arg(short = 'o', long = "out", default_value = "qhm-out")]
     pub out: PathBuf,
-    /// Overwrite what a previous demo wrote in a non-empty output directory.
+    /// Replace an earlier demo's output: deletes OUT's calibration.toml,
+    /// capture/, model/, renders/, report/ and summary.json, with everything
+    /// inside them (your own files there too); other files in OUT are kept.
     #[arg(long)]
     pub force: bool,
     /// Seed of the simulated rig's perturbations, sample and noise.

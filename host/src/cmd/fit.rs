@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use host::output::{OutputKind, StagedDir};
 use qhm_model::dipole::DEFAULT_ETA;
 use qhm_model::profile::{Norm, ProfileModel};
 use qhm_model::{Profile, fit_profile};
@@ -139,9 +140,14 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
 pub struct FitArgs {
     /// Capture directory holding `rectified/index.toml`.
     pub capture_dir: PathBuf,
-    /// Model directory to write (docs/model-format.md).
+    /// Model directory to write (docs/model-format.md); must be new, empty,
+    /// or (with --force) hold an earlier material model.
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
+    /// Replace the material model in MODEL_DIR (the whole directory, its
+    /// report included; a directory that holds no model is never replaced).
+    #[arg(long)]
+    pub force: bool,
     /// Relative index of refraction of the dipole.
     #[arg(long, default_value_t = DEFAULT_ETA)]
     pub eta: f64,
@@ -167,17 +173,32 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
         model: args.model.into(),
         ..Default::default()
     };
+    if !args.capture_dir.join("rectified/index.toml").is_file() {
+        let what = if args.capture_dir.join("capture.toml").is_file() {
+            "is not rectified yet"
+        } else {
+            "holds no rectified capture"
+        };
+        bail!(
+            "{} {what} (no rectified/index.toml); run `qhm rectify {}` first",
+            args.capture_dir.display(),
+            args.capture_dir.display()
+        );
+    }
+    // Refuse the output before the fit's work, not after it.
+    let staged = StagedDir::begin(&args.output, OutputKind::Model, args.force)?;
     let t = std::time::Instant::now();
     let (model, timings) = qhm_model::fit::fit_capture(&args.capture_dir, &opts)
         .with_context(|| format!("fitting {}", args.capture_dir.display()))?;
     let report = model
         .save_with(
-            &args.output,
+            staged.path(),
             &qhm_model::SaveOptions {
                 lrf_components: args.lrf_components,
             },
         )
         .with_context(|| format!("writing {}", args.output.display()))?;
+    staged.commit()?;
     let p = &model.dipole;
     println!("channel  R        a'        s'_t     s'_s     s_a       range (mm)");
     if let Some(d) = &model.diagnostics {

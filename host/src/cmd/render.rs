@@ -8,6 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use host::output::check_file_output;
 use qhm_model::MaterialModel;
 use qhm_render::material::{PRESET_NAMES, preset};
 use qhm_render::render::{measure_hierarchy, prepare};
@@ -65,6 +66,9 @@ pub struct RenderArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Replace existing output files (-o, --export-pbrt, --export-mitsuba).
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub(crate) fn load_model(spec: &str) -> anyhow::Result<(String, MaterialModel)> {
@@ -99,6 +103,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
     let exporting = args.export_pbrt.is_some() || args.export_mitsuba.is_some();
     if !(args.export_unit_mm.is_finite() && args.export_unit_mm > 0.0) {
         bail!("--export-unit-mm must be > 0");
+    }
+    // Every output is checked before any is written or the render starts.
+    for p in [&args.output, &args.export_pbrt, &args.export_mitsuba]
+        .into_iter()
+        .flatten()
+    {
+        check_file_output(p, args.force)?;
     }
     if let Some(p) = &args.export_pbrt {
         write_text(

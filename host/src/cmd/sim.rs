@@ -10,6 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
+use host::output::check_file_output;
 use sim_light::{Illumination, LaserOn, RigTruth, SceneDesc, SimQuality, World};
 
 use crate::cmd::simpty;
@@ -91,6 +92,9 @@ pub struct RenderArgs {
     /// The radiance before the sensor as EXR (W sr^-1 m^-2, linear RGB).
     #[arg(long)]
     pub hdr: Option<PathBuf>,
+    /// Replace existing --out and --hdr files.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Args, Debug)]
@@ -170,6 +174,9 @@ fn render(a: RenderArgs) -> Result<ExitCode> {
     };
     if laser.is_none() && lamps == 0 {
         bail!("nothing lights the sample: give --laser and/or --light");
+    }
+    for p in std::iter::once(&a.out).chain(&a.hdr) {
+        check_file_output(p, a.force)?;
     }
     if !(a.gain.is_finite() && a.gain > 0.0 && a.gain <= 64.0) {
         bail!("--gain {}: expected (0, 64]", a.gain);

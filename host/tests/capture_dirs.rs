@@ -1,0 +1,239 @@
+//! Capture directories through the real `qhm capture run`: a failed start
+//! leaves nothing, a capture that never took a frame is replaced, the resume
+//! command printed works as printed, an out-of-order journal is refused, and
+//! `qhm fit` on an unrectified capture says to rectify it. None of these runs
+//! a capture (seconds in all); crash-resume is tests/tests/capture_resume.rs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use qhm_acquire::{CaptureDir, Manifest, Plan, PlanConfig, Scale};
+
+fn qhm(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_qhm"))
+        .args(args)
+        .output()
+        .expect("qhm runs");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(!text.contains("panicked"), "qhm panicked: {text}");
+    (out.status.success(), text)
+}
+
+fn refused(args: &[&str], want: &[&str]) -> String {
+    let (ok, text) = qhm(args);
+    assert!(!ok, "qhm {args:?} should have failed: {text}");
+    for w in want {
+        assert!(
+            text.contains(w),
+            "qhm {args:?}: message lacks {w:?}: {text}"
+        );
+    }
+    text
+}
+
+fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(p.clone(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ci_plan() -> Plan {
+    Plan::new(PlanConfig::for_scale(Scale::Ci)).unwrap()
+}
+
+/// A ci capture of marble, seed 7, with the first step's frames journaled
+/// (stand-in bytes: the directory only checks their checksums).
+fn partial_capture(root: &Path) -> Manifest {
+    let plan = ci_plan();
+    let m = Manifest::new("sim", "marble", 7, &plan);
+    let mut d = CaptureDir::create(root, m.clone()).unwrap();
+    let step = &plan.steps[0];
+    for k in 0..step.triggers() {
+        for &c in &step.cameras {
+            let data = format!("frame 0 {k} {c}");
+            d.write_frame((0, k as u32, c), &step.frame_path(k, c), data.as_bytes())
+                .unwrap();
+        }
+    }
+    d.step_done(0).unwrap();
+    m
+}
+
+#[test]
+fn a_failed_start_leaves_nothing_and_an_unstarted_capture_is_replaced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cap");
+    // A bad sample: refused before the directory exists.
+    refused(
+        &[
+            "capture",
+            "run",
+            "--sim",
+            "--scale",
+            "ci",
+            "--sample",
+            "nosuch",
+            "-o",
+            s(&out),
+        ],
+        &["nosuch"],
+    );
+    assert!(!out.exists(), "a failed start left {}", out.display());
+    // A real rig without cameras: refused before the port is opened.
+    let text = refused(
+        &[
+            "capture",
+            "run",
+            "--port",
+            "/dev/null",
+            "--scale",
+            "ci",
+            "-o",
+            s(&out),
+        ],
+        &["--camera N=DEVICE", "missing"],
+    );
+    assert!(!out.exists(), "{text}");
+
+    // An unstarted capture of another sample (a start that failed before
+    // this fix, or a crash before the first frame) is no obstacle: the run
+    // goes on to the rig (here: fails on the bad sample, after the
+    // directory checks), with or without --resume.
+    let plan = ci_plan();
+    drop(CaptureDir::create(&out, Manifest::new("sim", "sponge", 3, &plan)).unwrap());
+    for resume in [false, true] {
+        let mut a = vec![
+            "capture", "run", "--sim", "--scale", "ci", "--sample", "nosuch",
+        ];
+        if resume {
+            a.push("--resume");
+        }
+        a.extend(["-o", s(&out)]);
+        let text = refused(&a, &["nosuch"]);
+        assert!(
+            !text.contains("already holds") && !text.contains("different"),
+            "{text}"
+        );
+    }
+    assert!(CaptureDir::is_unstarted(&out).unwrap());
+}
+
+#[test]
+fn the_printed_resume_command_passes_the_directory_checks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cap");
+    partial_capture(&out);
+    let before = snapshot(&out);
+    let expected = format!(
+        "qhm capture run --sim --scale ci --sample marble --seed 7 --resume -o {}",
+        s(&out)
+    );
+    // Without --resume, and with the default scale, sample and seed.
+    let text = refused(
+        &["capture", "run", "--sim", "-o", s(&out)],
+        &["already holds a capture", &expected],
+    );
+    assert_eq!(text.trim().lines().count(), 1, "{text}");
+    let text = refused(
+        &["capture", "run", "--sim", "--resume", "-o", s(&out)],
+        &[
+            "different plan (--scale ci; this run asked for --scale default)",
+            &expected,
+        ],
+    );
+    assert_eq!(
+        snapshot(&out),
+        before,
+        "refused directory was modified: {text}"
+    );
+    let text = refused(
+        &[
+            "capture",
+            "run",
+            "--sim",
+            "--scale",
+            "ci",
+            "--resume",
+            "-o",
+            s(&out),
+        ],
+        &[
+            "different seed (--seed 7; this run asked for --seed 1)",
+            &expected,
+        ],
+    );
+    assert_eq!(text.trim().lines().count(), 1, "{text}");
+
+    // The command as printed: while this test holds the capture's lock, it
+    // gets past every setting check and stops at the lock (no capture runs).
+    let held = CaptureDir::open(&out, None).unwrap();
+    let words: Vec<&str> = expected.split(' ').skip(1).collect();
+    refused(&words, &["another capture run is writing this directory"]);
+    drop(held);
+    assert_eq!(snapshot(&out), before);
+}
+
+#[test]
+fn swapped_frame_lines_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cap");
+    partial_capture(&out);
+    let journal = out.join("journal");
+    let text = std::fs::read_to_string(&journal).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    assert!(lines[1].starts_with("frame 0 ") && lines[2].starts_with("frame 0 "));
+    lines.swap(1, 2);
+    std::fs::write(&journal, lines.join("\n") + "\n").unwrap();
+    let before = snapshot(&out);
+    refused(
+        &[
+            "capture",
+            "run",
+            "--sim",
+            "--scale",
+            "ci",
+            "--sample",
+            "marble",
+            "--seed",
+            "7",
+            "--resume",
+            "-o",
+            s(&out),
+        ],
+        &["journal line 2", "out of plan order"],
+    );
+    assert_eq!(snapshot(&out), before);
+}
+
+#[test]
+fn fit_of_an_unrectified_capture_says_to_rectify_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cap = tmp.path().join("cap");
+    partial_capture(&cap);
+    let model = tmp.path().join("model");
+    let text = refused(
+        &["fit", s(&cap), "-o", s(&model)],
+        &[
+            &format!("run `qhm rectify {}` first", s(&cap)),
+            "not rectified",
+        ],
+    );
+    assert_eq!(text.trim().lines().count(), 1, "{text}");
+    assert!(!model.exists());
+}
