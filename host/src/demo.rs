@@ -349,9 +349,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
         };
         let b = Bar::new("fit", 0, opts.quiet);
         let (model, _timings) = fit_capture_with_progress(&capture, &fit_opts, &|done, total| {
-            if done == 1 {
-                b.start(total as u64, 0);
-            }
+            b.set_total(total as u64);
             b.set_position(done as u64)
         })?;
         b.finish();

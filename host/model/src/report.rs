@@ -64,6 +64,8 @@ struct Frame {
     y0: f64,
     y1: f64,
     log_y: bool,
+    /// Spacing of the x ticks (0: round numbers chosen for the range).
+    x_step: f64,
 }
 
 impl Frame {
@@ -106,8 +108,13 @@ impl Frame {
             w - Self::L - Self::R,
             h - Self::T - Self::B,
         );
-        for k in 0..=5 {
-            let x = self.x0 + (self.x1 - self.x0) * k as f64 / 5.0;
+        let xs = if self.x_step > 0.0 {
+            let n = ((self.x1 - self.x0) / self.x_step + 1e-9).floor() as usize;
+            (0..=n).map(|k| self.x0 + k as f64 * self.x_step).collect()
+        } else {
+            nice_ticks(self.x0, self.x1)
+        };
+        for x in xs {
             let _ = writeln!(
                 s,
                 "<line x1=\"{X:.1}\" x2=\"{X:.1}\" y1=\"{t}\" y2=\"{b}\" stroke=\"#e4e4e4\"/>\
@@ -128,9 +135,7 @@ impl Frame {
                 .filter(|v| *v >= self.y0 * 0.999 && *v <= self.y1 * 1.001)
                 .collect()
         } else {
-            (0..=5)
-                .map(|k| self.y0 + (self.y1 - self.y0) * k as f64 / 5.0)
-                .collect()
+            nice_ticks(self.y0, self.y1)
         };
         for y in ticks {
             let label = if self.log_y {
@@ -166,8 +171,35 @@ impl Frame {
     }
 }
 
-/// A tick label with as many digits as it needs.
+/// Ticks at 1, 2 or 5 times a power of ten, about five over [a, b].
+fn nice_ticks(a: f64, b: f64) -> Vec<f64> {
+    let span = b - a;
+    if !(span > 0.0 && span.is_finite()) {
+        return vec![a];
+    }
+    let raw = span / 5.0;
+    let p = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * p)
+        .find(|s| *s >= raw * 0.7)
+        .unwrap_or(10.0 * p);
+    let first = (a / step).ceil() as i64;
+    let last = (b / step + 1e-9).floor() as i64;
+    (first..=last).map(|k| k as f64 * step).collect()
+}
+
+/// A tick label with as many digits as it needs, trailing zeros dropped.
 fn tick(v: f64) -> String {
+    let s = tick_digits(v);
+    if s.contains('.') && !s.contains('e') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+fn tick_digits(v: f64) -> String {
     let a = v.abs();
     if a == 0.0 {
         "0".into()
@@ -209,6 +241,7 @@ fn channel_profile_svg(model: &MaterialModel, ch: &crate::profile::ChannelFit) -
         y0,
         y1,
         log_y: true,
+        x_step: 0.0,
     };
     let (a, st) = (ch.fit.alpha_prime, ch.fit.sigma_t_prime);
     let mut s = f.open(
@@ -347,6 +380,7 @@ pub fn entrance_svg(model: &MaterialModel) -> String {
         y0: 0.0,
         y1,
         log_y: false,
+        x_step: 15.0,
     };
     let mut s = f.open(
         &format!(
@@ -495,6 +529,27 @@ impl Map {
     }
 }
 
+/// The colour of a texel with a channel that is not a number (not measured).
+const INVALID: [u8; 3] = [255, 0, 255];
+
+/// A caption's note when some texels of `maps` are not valid.
+fn invalid_note(maps: &[&Texture]) -> String {
+    let n: usize = maps
+        .iter()
+        .map(|t| {
+            t.data
+                .iter()
+                .filter(|p| p.iter().any(|x| !x.is_finite()))
+                .count()
+        })
+        .sum();
+    if n == 0 {
+        String::new()
+    } else {
+        format!("; magenta: {n} texels not valid (NaN in a channel)")
+    }
+}
+
 /// How one row of images turns values into colours.
 #[derive(Clone, Copy, Debug)]
 struct Scale {
@@ -510,13 +565,13 @@ impl Scale {
         (v - self.lo) / (self.hi - self.lo)
     }
     fn pixel(&self, v: [f32; 3]) -> [u8; 3] {
+        if v.iter().any(|x| !x.is_finite()) {
+            return INVALID;
+        }
         if self.rgb {
             return std::array::from_fn(|c| self.map.at(self.t(v[c] as f64))[0]);
         }
         let m = (v[0] as f64 + v[1] as f64 + v[2] as f64) / 3.0;
-        if !m.is_finite() {
-            return [255, 0, 255];
-        }
         self.map.at(self.t(m))
     }
 }
@@ -670,7 +725,7 @@ fn data_uri(png: &[u8]) -> String {
 
 /// A colour bar: the map's gradient with tick labels of the values.
 fn colour_bar(id: &str, scale: &Scale, label: &str) -> String {
-    let (w, bw, x0) = (360.0, 300.0, 10.0);
+    let (w, bw, x0) = (380.0, 300.0, 28.0);
     let mut s = format!(
         "<svg class=\"cbar\" xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"46\" font-family=\"Helvetica, Arial, sans-serif\" font-size=\"10\">\
          <defs><linearGradient id=\"{id}\" x1=\"0\" x2=\"1\" y1=\"0\" y2=\"0\">"
@@ -700,13 +755,16 @@ fn colour_bar(id: &str, scale: &Scale, label: &str) -> String {
     s
 }
 
+/// θ and φ of a direction in degrees; φ is left out where θ is 0.
 fn dir_label(v: [f32; 3]) -> String {
     let th = v[2].clamp(-1.0, 1.0).acos().to_degrees();
-    let ph = v[1].atan2(v[0]).to_degrees().rem_euclid(360.0);
-    if th < 0.5 {
+    let ph = (v[1].atan2(v[0]).to_degrees().round() as i32).rem_euclid(360);
+    if th < 0.05 {
         "θ 0°".into()
+    } else if th < 9.95 {
+        format!("θ {th:.1}°, φ {ph}°")
     } else {
-        format!("θ {th:.0}°, φ {ph:.0}°")
+        format!("θ {th:.0}°, φ {ph}°")
     }
 }
 
@@ -1063,33 +1121,51 @@ fn calibration_section(d: Option<&FitDiagnostics>, html: &mut String) {
 }
 
 fn times_section(d: Option<&FitDiagnostics>, opts: &ReportOptions, html: &mut String) {
-    let mut rows: Vec<(String, f64)> = Vec::new();
-    if let Some(t) = d.and_then(|d| d.timings.as_ref()) {
-        rows.extend([
-            ("fit: dipole (a', s'_t)".to_string(), t.dipole),
-            ("fit: entrance f(w_i)".to_string(), t.entrance),
-            ("fit: exiting f_v".to_string(), t.exiting),
-            ("fit: local reflectance".to_string(), t.lrf),
-        ]);
-    }
-    rows.extend(opts.stages.iter().cloned());
+    let fit: Vec<(String, f64)> = d
+        .and_then(|d| d.timings.as_ref())
+        .map(|t| {
+            vec![
+                ("dipole term (R, a', s'_t)".to_string(), t.dipole),
+                ("entrance function f(w_i)".to_string(), t.entrance),
+                ("exiting function f_v".to_string(), t.exiting),
+                ("local reflectance function".to_string(), t.lrf),
+            ]
+        })
+        .unwrap_or_default();
     html.push_str("<h2>Stage times</h2>\n");
-    if rows.is_empty() {
+    if fit.is_empty() && opts.stages.is_empty() {
         html.push_str("<p class=\"note\">Not recorded (the model was fitted before fit.json kept its stage times).</p>\n");
         return;
     }
-    let peak = rows.iter().map(|r| r.1).fold(1e-9, f64::max);
+    let peak = fit
+        .iter()
+        .chain(&opts.stages)
+        .map(|r| r.1)
+        .fold(1e-9, f64::max);
     html.push_str(
         "<table><tr><th class=\"l\">stage</th><th>seconds</th><th class=\"l\"></th></tr>\n",
     );
-    for (name, s) in &rows {
+    let group = |title: &str, rows: &[(String, f64)], html: &mut String| {
+        if rows.is_empty() {
+            return;
+        }
+        let total: f64 = rows.iter().map(|r| r.1).sum();
         let _ = writeln!(
             html,
-            "<tr><td class=\"l\">{}</td><td>{s:.2}</td><td class=\"l\"><span class=\"bar\" style=\"width:{:.0}px\"></span></td></tr>",
-            esc(name),
-            (s / peak * 300.0).max(1.0)
+            "<tr><th class=\"l\">{}</th><th>{total:.2}</th><th></th></tr>",
+            esc(title)
         );
-    }
+        for (name, s) in rows {
+            let _ = writeln!(
+                html,
+                "<tr><td class=\"l\">&nbsp;&nbsp;{}</td><td>{s:.2}</td><td class=\"l\"><span class=\"bar\" style=\"width:{:.0}px\"></span></td></tr>",
+                esc(name),
+                (s / peak * 300.0).max(1.0)
+            );
+        }
+    };
+    group("pipeline (total)", &opts.stages, html);
+    group("inside the fit (total)", &fit, html);
     html.push_str("</table>\n");
 }
 
@@ -1176,7 +1252,11 @@ fn image_sections(
                 ));
             }
             html.push_str("</div>\n");
-            html.push_str(&colour_bar(&format!("cbar-fig6-{r}"), scale, bar));
+            html.push_str(&colour_bar(
+                &format!("cbar-fig6-{r}"),
+                scale,
+                &format!("{bar}{}", invalid_note(maps)),
+            ));
         }
     }
 
@@ -1194,7 +1274,11 @@ fn image_sections(
         ));
     }
     html.push_str("</div>\n");
-    html.push_str(&colour_bar("cbar-fv", &fv_scale, "f_v, mean of R G B"));
+    html.push_str(&colour_bar(
+        "cbar-fv",
+        &fv_scale,
+        &format!("f_v, mean of R G B{}", invalid_note(&fv_maps)),
+    ));
     files.push(("fv.png", mosaic_png(&fv_maps, &fv_scale)));
 
     // The first LRF samples, labelled.
@@ -1219,7 +1303,11 @@ fn image_sections(
             ));
         }
         html.push_str("</div>\n");
-        html.push_str(&colour_bar("cbar-lrf", &scale, "LRF, mean of R G B (1/sr)"));
+        html.push_str(&colour_bar(
+            "cbar-lrf",
+            &scale,
+            &format!("LRF, mean of R G B (1/sr){}", invalid_note(&lrf_all[..n])),
+        ));
         files.push(("lrf.png", mosaic_png(&lrf_all[..n], &scale)));
     }
     files
@@ -1321,6 +1409,15 @@ mod tests {
     use crate::synth::{SynthSpec, write_synthetic};
 
     #[test]
+    fn ticks_are_round_numbers() {
+        assert_eq!(nice_ticks(0.0, 10.9), vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        assert_eq!(nice_ticks(0.0, 90.0), vec![0.0, 20.0, 40.0, 60.0, 80.0]);
+        let t = nice_ticks(0.0, 1.1);
+        assert_eq!(t.len(), 6);
+        assert!((t[5] - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
     fn base64_matches_the_rfc_examples() {
         assert_eq!(base64(b""), "");
         assert_eq!(base64(b"f"), "Zg==");
@@ -1383,7 +1480,7 @@ mod tests {
         // The lamp images come from the capture, the calibration from its index.
         assert!(html.contains("rectified lamp images of"), "lamp source");
         assert!(html.contains("synthetic (qhm_model::synth)"));
-        assert!(html.contains("fit: dipole") && html.contains(">capture<"));
+        assert!(html.contains("dipole term (R") && html.contains("&nbsp;capture<"));
         // f_v tiles are labelled with their view.
         assert!(
             html.contains("<br>θ 50°, φ 180°</figcaption>"),

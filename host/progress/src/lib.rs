@@ -205,6 +205,15 @@ impl Bar {
         }
     }
 
+    /// Sets the total once it is known, keeping the rate measured so far.
+    pub fn set_total(&self, total: u64) {
+        match &self.kind {
+            Kind::Hidden => {}
+            Kind::Terminal(b) => b.set_length(total),
+            Kind::Lines(_) => self.lines(|l| l.total = total),
+        }
+    }
+
     /// Steps done so far.
     pub fn set_position(&self, done: u64) {
         match &self.kind {
@@ -342,6 +351,10 @@ mod tests {
         let last = out.text().lines().last().unwrap().to_string();
         // 30 steps took ~no time: 30 more take about as long.
         assert_eq!(last, "rectify: 70/100, ETA 00:00");
+        bar.set_total(200);
+        bar.inc(1);
+        let last = out.text().lines().last().unwrap().to_string();
+        assert_eq!(last, "rectify: 71/200, ETA 00:00");
     }
 
     #[test]
