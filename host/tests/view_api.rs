@@ -2,8 +2,8 @@
 //! with a message and leave the server running; it listens on 127.0.0.1
 //! only; pass 1 is reused for camera moves and re-lit for light moves; a
 //! newer request supersedes a render in flight; and a saved scene makes
-//! `qhm render` reproduce the saved EXR bit for bit, under names that
-//! never overwrite.
+//! `qhm render` reproduce the saved EXR bit for bit (also from a re-lit
+//! pass 1), under names that never overwrite.
 
 mod view_common;
 
@@ -207,6 +207,10 @@ fn a_saved_scene_reproduces_the_image_with_qhm_render_and_never_overwrites() {
         "camera": {"azimuth_deg": 30, "elevation_deg": 15, "distance": 1.2},
         "light": {"azimuth_deg": 160, "elevation_deg": -20, "irradiance": 3}"#,
     );
+    // Pass 1 made for another light first, so the save re-lights it: the
+    // re-lit image must still be qhm render's.
+    let other = srv.post("/api/render", &view(r#", "level": 3, "env": "sky""#));
+    assert_eq!(other.header("x-qhm-pass-one"), Some("prepared"));
     let first = srv.post("/api/save", &body);
     assert_eq!(first.status, 200, "{}", first.text());
     let first = first.json();

@@ -255,6 +255,8 @@ pub struct Prepared {
     pub tree: DipoleTree,
     pub rd: RdTable,
     pub texture: SynthTexture,
+    /// The radius left out of `rd` (depends on the mode, not the lights).
+    hole: f32,
     eta: f64,
     /// F̄, the hemispherical mean of F_r: normalises the plain dipole's exit.
     fresnel_average: f64,
@@ -282,7 +284,11 @@ pub fn prepare<M: Material>(
         SurfaceSamples::default()
     };
     stats.secs_samples = t.elapsed().as_secs_f64();
-    let (tree, rd) = light_pass(scene, material, settings, &mut samples, stats);
+    let tree = light_pass(scene, material, settings, &mut samples, stats);
+    let t = Instant::now();
+    let hole = rd_hole(material, settings);
+    let rd = rd_table(material, &samples, hole);
+    stats.secs_tree += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let (tw, th) = material.texture_size();
     let texture = if settings.synthesis && tw >= 8 && th >= 8 {
@@ -301,21 +307,21 @@ pub fn prepare<M: Material>(
         tree,
         rd,
         texture,
+        hole,
         eta: dipole.eta,
         fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
     })
 }
 
 /// Pass 1 after the samples: their irradiance (from the scene's lights and
-/// env map, through the mode's entrance), the octree over them and the R_d
-/// table (whose local hole depends on the mode).
+/// env map, through the mode's entrance) and the octree over them.
 fn light_pass<M: Material>(
     scene: &Scene,
     material: &M,
     settings: &RenderSettings,
     samples: &mut SurfaceSamples,
     stats: &mut RenderStats,
-) -> (DipoleTree, RdTable) {
+) -> DipoleTree {
     let dipole = material.dipole();
     let t = Instant::now();
     let entrance = if settings.mode.plain_dipole() {
@@ -333,28 +339,36 @@ fn light_pass<M: Material>(
     stats.secs_irradiance = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let tree = DipoleTree::new(samples);
+    stats.secs_tree = t.elapsed().as_secs_f64();
+    stats.surface_samples = samples.pos.len();
+    stats.octree_nodes = tree.node_count();
+    tree
+}
+
+/// Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
+fn rd_hole<M: Material>(material: &M, settings: &RenderSettings) -> f32 {
+    if settings.mode.has_lrf() && material.has_lrf() {
+        material.local_disc_mm()
+    } else {
+        0.0
+    }
+}
+
+/// The R_d table for the samples' spacing: it does not depend on the lights.
+fn rd_table<M: Material>(material: &M, samples: &SurfaceSamples, hole: f32) -> RdTable {
     // Every sample stands for an equal share A of the area; the kernel is
     // averaged over a disk of twice that radius, which hides the sample
     // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
     let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
-    // Eq. 4 sums over B_o = A - A_o: the disc A_o is the LRF's part.
-    let hole = if settings.mode.has_lrf() && material.has_lrf() {
-        material.local_disc_mm()
-    } else {
-        0.0
-    };
-    let rd = RdTable::with_hole(&dipole, rho, hole);
-    stats.secs_tree = t.elapsed().as_secs_f64();
-    stats.surface_samples = samples.pos.len();
-    stats.octree_nodes = tree.node_count();
-    (tree, rd)
+    RdTable::with_hole(&material.dipole(), rho, hole)
 }
 
 impl Prepared {
     /// Pass 1 for new lights, env map or mode on the same surface samples
     /// and texture (`qhm view` while a light is dragged): redoes only the
-    /// irradiance, the octree and the R_d table, exactly as [`prepare`]
-    /// would. The mode must keep the dipole term on or off as prepared.
+    /// irradiance and the octree (and the R_d table if the mode changes the
+    /// LRF's disc), exactly as [`prepare`] would. The mode must keep the
+    /// dipole term on or off as prepared.
     pub fn relight<M: Material>(
         &mut self,
         scene: &Scene,
@@ -368,7 +382,12 @@ impl Prepared {
                 "relight: the mode turns the dipole term on or off; prepare again".into(),
             ));
         }
-        (self.tree, self.rd) = light_pass(scene, material, settings, &mut self.samples, stats);
+        self.tree = light_pass(scene, material, settings, &mut self.samples, stats);
+        let hole = rd_hole(material, settings);
+        if hole != self.hole {
+            self.rd = rd_table(material, &self.samples, hole);
+            self.hole = hole;
+        }
         Ok(())
     }
 }

@@ -81,7 +81,9 @@ pub struct Server {
 
 impl Server {
     pub fn start(model: &Path, extra: &[&str]) -> Server {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_qhm"))
+        // QHM_BIN runs the tests against another build (e.g. release).
+        let bin = std::env::var_os("QHM_BIN").unwrap_or(env!("CARGO_BIN_EXE_qhm").into());
+        let mut child = Command::new(bin)
             .arg("view")
             .arg(model)
             .args(["--port", "0"])
