@@ -237,3 +237,74 @@ fn fit_of_an_unrectified_capture_says_to_rectify_it() {
     assert_eq!(text.trim().lines().count(), 1, "{text}");
     assert!(!model.exists());
 }
+
+/// Ctrl-C before the first frame leaves nothing; after it, the message
+/// gives the exact command that resumes (about 8 s: one frame is captured).
+#[cfg(unix)]
+#[test]
+fn ctrl_c_before_the_first_frame_leaves_nothing_and_after_it_prints_the_resume_command() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    use std::time::{Duration, Instant};
+
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cap");
+    let journal = out.join("journal");
+    let frames = || {
+        std::fs::read_to_string(&journal)
+            .map(|j| j.lines().filter(|l| l.starts_with("frame ")).count())
+            .unwrap_or(0)
+    };
+    for after_a_frame in [false, true] {
+        let child = Command::new(env!("CARGO_BIN_EXE_qhm"))
+            .args([
+                "capture",
+                "run",
+                "--sim",
+                "--scale",
+                "ci",
+                "--quiet",
+                "-o",
+                s(&out),
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t = Instant::now();
+        let ready = || {
+            if after_a_frame {
+                frames() > 0
+            } else {
+                journal.exists()
+            }
+        };
+        while !ready() {
+            assert!(
+                t.elapsed() < Duration::from_secs(120),
+                "capture did not start"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if !after_a_frame {
+            // The first frame is seconds away; the Ctrl-C handler is up.
+            std::thread::sleep(Duration::from_millis(300));
+            assert_eq!(frames(), 0, "a frame came too early for this test");
+        }
+        kill(Pid::from_raw(child.id() as i32), Signal::SIGINT).unwrap();
+        let res = child.wait_with_output().unwrap();
+        let text = String::from_utf8_lossy(&res.stderr).into_owned();
+        assert_eq!(res.status.code(), Some(130), "{text}");
+        if after_a_frame {
+            let cmd = format!(
+                "continue with `qhm capture run --sim --scale ci --sample two-material --seed 1 --resume -o {}`",
+                s(&out)
+            );
+            assert!(text.contains(&cmd), "{text}");
+            assert!(frames() > 0);
+        } else {
+            assert!(text.contains("no frame was taken"), "{text}");
+            assert!(!out.exists(), "an interrupted start left {}", out.display());
+        }
+    }
+}

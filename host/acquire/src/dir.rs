@@ -280,7 +280,8 @@ impl CaptureDir {
 
     /// Removes this capture's files if it never journaled a frame (a run
     /// that failed before its first frame leaves nothing behind); returns
-    /// whether it did. The directory itself is removed only if then empty.
+    /// whether it did. The directory itself stays (the caller knows whether
+    /// it made it).
     pub fn discard_if_unstarted(self) -> Result<bool, DirError> {
         let root = self.root.clone();
         if !self.frames.is_empty() {
@@ -291,7 +292,6 @@ impl CaptureDir {
             return Ok(false);
         }
         Self::remove_unstarted(&root)?;
-        let _ = fs::remove_dir(&root);
         Ok(true)
     }
 
@@ -736,7 +736,11 @@ mod tests {
             Err(DirError::Locked(_))
         ));
         assert!(d.discard_if_unstarted().unwrap());
-        assert!(!root.exists(), "a run without frames leaves nothing");
+        assert_eq!(
+            fs::read_dir(&root).unwrap().count(),
+            0,
+            "a run without frames leaves nothing"
+        );
         // One frame journaled: kept.
         let mut d = CaptureDir::create(&root, m.clone()).unwrap();
         let step = &plan.steps[0];

@@ -336,6 +336,7 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
             .with_context(|| format!("opening the rig on {}", port.display()))?;
         (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
     };
+    let made_out = !a.out.exists();
     let mut dir = match opened {
         Some(d) => d,
         None => CaptureDir::create(&a.out, manifest).map_err(|e| dir_error(e, &a))?,
@@ -364,6 +365,9 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     let stopped = |dir: CaptureDir| -> Result<String> {
         let n = dir.frame_count();
         Ok(if dir.discard_if_unstarted()? {
+            if made_out {
+                let _ = std::fs::remove_dir(&a.out);
+            }
             format!(
                 "no frame was taken; {} is left as it was before",
                 a.out.display()
