@@ -54,7 +54,7 @@ struct PageStatus {
     images: usize,
     broken: Vec<String>,
     errors: Vec<String>,
-    /// Console messages at error level in Chromium's log.
+    /// Console messages in Chromium's log.
     console_errors: Vec<String>,
 }
 
@@ -100,11 +100,12 @@ fn check_page(chromium: &Path, page: &Path) -> PageStatus {
             .map(|x| x.as_str().unwrap_or("?").to_string())
             .collect()
     };
-    // Chromium logs page console messages as `...:CONSOLE(line)] "text", source: ...`;
-    // errors carry level 2 or ERROR in the prefix depending on the build.
+    // Chromium logs every console message of the page, whatever its level,
+    // as `[...:INFO:CONSOLE:line] "text", source: ...`. The report logs
+    // nothing, so any such line is a problem.
     let console_errors = log
         .lines()
-        .filter(|l| l.contains("CONSOLE") && (l.contains(":ERROR:") || l.contains("console.error")))
+        .filter(|l| l.contains(":CONSOLE"))
         .map(str::to_string)
         .collect();
     PageStatus {
@@ -234,7 +235,7 @@ fn the_report_page_loads_cleanly_in_headless_chromium() {
     // The checker fails a broken page: a corrupt image and a console error.
     let broken = tmp.path().join("broken.html");
     let corrupt = "<img alt=\"deliberately corrupt\" src=\"data:image/png;base64,iVBORw0KGgoAAAANSUhEUgAAAAEAAAAB\">\
-                   <script>console.error('deliberate error')</script></body>";
+                   <script>console.error('deliberate error'); no_such_function();</script></body>";
     std::fs::write(&broken, html.replace("</body>", corrupt)).unwrap();
     let status = check_page(&chromium, &broken);
     assert_eq!(
@@ -242,10 +243,16 @@ fn the_report_page_loads_cleanly_in_headless_chromium() {
         vec!["deliberately corrupt".to_string()],
         "{status:#?}"
     );
-    assert!(
-        status.errors.iter().any(|e| e.contains("deliberate error")),
-        "{status:#?}"
-    );
+    for what in ["deliberate error", "no_such_function"] {
+        assert!(
+            status.errors.iter().any(|e| e.contains(what)),
+            "{what}: {status:#?}"
+        );
+        assert!(
+            status.console_errors.iter().any(|e| e.contains(what)),
+            "{what}: {status:#?}"
+        );
+    }
     assert!(!status.clean());
 
     // And the screenshot check fails a blank page.

@@ -922,8 +922,10 @@ th{background:#f3f3f3} td.l,th.l{text-align:left}
 #qhm-check{font-size:12px;margin-top:30px;border-top:1px solid #ccc;padding-top:6px}
 ";
 
-/// Captures script errors from the start and, after load, decodes every
-/// image; writes the outcome into #qhm-check (text and `data-status` JSON).
+/// Captures script errors from the start and, on load, checks that every
+/// image decoded (drawing it into a canvas throws for a broken one);
+/// writes the outcome into #qhm-check (text and `data-status` JSON). All
+/// synchronous in the load handler, so a headless `--dump-dom` sees it.
 const CHECK_SCRIPT: &str = r#"<script>
 (function () {
   var errors = [];
@@ -935,17 +937,19 @@ const CHECK_SCRIPT: &str = r#"<script>
   console.error = function () { errors.push(Array.prototype.join.call(arguments, ' ')); ce.apply(console, arguments); };
   window.addEventListener('load', function () {
     var imgs = Array.prototype.slice.call(document.images);
-    Promise.all(imgs.map(function (i) {
-      return i.decode().then(function () { return i.naturalWidth > 0 ? null : i.alt; }, function () { return i.alt || '(no alt)'; });
-    })).then(function (bad) {
-      bad = bad.filter(function (x) { return x !== null; });
-      var el = document.getElementById('qhm-check');
-      el.setAttribute('data-status', JSON.stringify({ images: imgs.length, broken: bad, errors: errors }));
-      el.className = bad.length || errors.length ? 'bad' : 'ok';
-      el.textContent = bad.length || errors.length
-        ? 'Page check: ' + bad.length + ' of ' + imgs.length + ' images did not decode (' + bad.join(', ') + '); ' + errors.length + ' script errors (' + errors.join('; ') + ').'
-        : 'Page check: all ' + imgs.length + ' images decoded; no script errors.';
+    var bad = [];
+    var g = document.createElement('canvas').getContext('2d');
+    imgs.forEach(function (i) {
+      var ok = i.complete && i.naturalWidth > 0;
+      if (ok) { try { g.drawImage(i, 0, 0, 1, 1); } catch (e) { ok = false; } }
+      if (!ok) bad.push(i.alt || '(no alt)');
     });
+    var el = document.getElementById('qhm-check');
+    el.setAttribute('data-status', JSON.stringify({ images: imgs.length, broken: bad, errors: errors }));
+    el.className = bad.length || errors.length ? 'bad' : 'ok';
+    el.textContent = bad.length || errors.length
+      ? 'Page check: ' + bad.length + ' of ' + imgs.length + ' images did not decode (' + bad.join(', ') + '); ' + errors.length + ' script errors (' + errors.join('; ') + ').'
+      : 'Page check: all ' + imgs.length + ' images decoded; no script errors.';
   });
 })();
 </script>"#;
