@@ -778,6 +778,24 @@ fn tile(png: &[u8], alt: &str, caption: &str) -> String {
     )
 }
 
+/// The LRF sample whose light and view are nearest to `light` and `view`
+/// (summed angles); None without samples.
+pub fn nearest_sample(model: &MaterialModel, light: [f32; 3], view: [f32; 3]) -> Option<usize> {
+    let angle = |a: [f32; 3], b: [f32; 3]| {
+        let n = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-12);
+        ((a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (n(a) * n(b)))
+            .clamp(-1.0, 1.0)
+            .acos()
+    };
+    (0..model.lrf.samples.len()).min_by(|&i, &j| {
+        let d = |k: usize| {
+            let s = model.lrf.samples[k];
+            angle(s.light, light) + angle(s.view, view)
+        };
+        d(i).total_cmp(&d(j))
+    })
+}
+
 /// Up to four LRF samples spread over the sorted (view, light) pairs.
 fn default_fig6(model: &MaterialModel) -> Vec<usize> {
     let s = &model.lrf.samples;
@@ -1496,6 +1514,9 @@ mod tests {
         }
         let png = image::open(out.path().join("lrf.png")).unwrap();
         assert!(png.width() > 100);
+        // A chosen light and view picks the nearest sample.
+        let s5 = model.lrf.samples[5];
+        assert_eq!(nearest_sample(&model, s5.light, s5.view), Some(5));
         // Without the capture the lamp images are rebuilt from the model.
         let mut m2 = model.clone();
         m2.diagnostics.as_mut().unwrap().capture_dir = None;
