@@ -110,6 +110,20 @@ fn a_failed_start_leaves_nothing_and_an_unstarted_capture_is_replaced() {
         &["--camera N=DEVICE", "missing"],
     );
     assert!(!out.exists(), "{text}");
+    refused(
+        &[
+            "capture",
+            "run",
+            "--port",
+            "/dev/null",
+            "--camera",
+            "9=x",
+            "-o",
+            s(&out),
+        ],
+        &["--camera \"9=x\": expected N=DEVICE"],
+    );
+    assert!(!out.exists());
 
     // An unstarted capture of another sample (a start that failed before
     // this fix, or a crash before the first frame) is no obstacle: the run

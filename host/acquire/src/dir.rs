@@ -244,6 +244,11 @@ impl CaptureDir {
         if !root.join(MANIFEST).is_file() || !root.join(JOURNAL).is_file() {
             return Ok(false);
         }
+        // A damaged or foreign manifest is refused by `open`, never replaced.
+        match Manifest::read(root) {
+            Ok(m) if m.format == FORMAT && m.version == VERSION => {}
+            _ => return Ok(false),
+        }
         for e in fs::read_dir(root).map_err(io_err(root))? {
             let name = e.map_err(io_err(root))?.file_name();
             if name != MANIFEST && name != JOURNAL && name != "frames" {
@@ -753,6 +758,11 @@ mod tests {
             CaptureDir::create(&root, other),
             Err(DirError::Exists(_))
         ));
+        // A damaged manifest: not replaced.
+        let root3 = tmp.path().join("cap3");
+        drop(CaptureDir::create(&root3, m.clone()).unwrap());
+        fs::write(root3.join(MANIFEST), b"format = 3").unwrap();
+        assert!(!CaptureDir::is_unstarted(&root3).unwrap());
         // A user's file beside an unstarted capture: kept too.
         let root2 = tmp.path().join("cap2");
         drop(CaptureDir::create(&root2, m.clone()).unwrap());

@@ -237,10 +237,18 @@ fn dir_error(e: DirError, a: &RunArgs) -> anyhow::Error {
 
 /// A real rig needs `--camera N=DEVICE` for every camera the plan fires.
 fn check_cameras_given(plan: &Plan, specs: &[String]) -> Result<()> {
-    let given: std::collections::BTreeSet<u8> = specs
-        .iter()
-        .filter_map(|s| s.split_once('=')?.0.trim().parse().ok())
-        .collect();
+    let mut given = std::collections::BTreeSet::new();
+    for spec in specs {
+        let n = spec
+            .split_once('=')
+            .filter(|(_, dev)| !dev.trim().is_empty())
+            .and_then(|(n, _)| n.trim().parse::<u8>().ok())
+            .filter(|&n| n < 8);
+        match n {
+            Some(n) => given.insert(n),
+            None => bail!("--camera {spec:?}: expected N=DEVICE, N in 0..8"),
+        };
+    }
     let needed: std::collections::BTreeSet<u8> = plan
         .steps
         .iter()
