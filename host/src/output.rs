@@ -354,6 +354,23 @@ mod tests {
         assert_eq!(fs::read_dir(tmp.path()).unwrap().count(), 1);
     }
 
+    #[cfg(unix)]
+    #[test]
+    fn a_killed_run_s_staging_is_cleaned_up() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("model");
+        // No process has this pid (above Linux's pid_max of 2^22).
+        let stale = tmp.path().join(".model.tmp-99999999");
+        fs::create_dir(&stale).unwrap();
+        fs::write(stale.join("half.exr"), "x").unwrap();
+        let other = tmp.path().join(".modelx.tmp-99999999");
+        fs::create_dir(&other).unwrap();
+        let s = StagedDir::begin(&out, OutputKind::Model, false).unwrap();
+        assert!(!stale.exists());
+        assert!(other.exists(), "another output's staging is not ours");
+        drop(s);
+    }
+
     #[test]
     fn files_need_force() {
         let tmp = tempfile::tempdir().unwrap();
