@@ -236,7 +236,6 @@ fn lightings(scene: &Scene) -> [(&'static str, Vec<Light>, Option<EnvMap>); 3] {
 
 /// Runs the demo; returns the summary also written to `out/summary.json`.
 pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
-    prepare_out(&opts.out, opts.force)?;
     let out = opts.out.as_path();
     let rig_cfg = SimRigConfig::new(&opts.sample, opts.scale, opts.seed);
     // Validate the sample before anything long starts.
@@ -250,6 +249,8 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             bail!("{:?} is a calibration target, not a sample", opts.sample)
         }
     };
+    // Only a demo that can start makes its output directory.
+    prepare_out(&opts.out, opts.force)?;
     let mut stages = Stages {
         quiet: opts.quiet,
         times: Vec::new(),

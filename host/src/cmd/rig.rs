@@ -231,6 +231,12 @@ pub struct SimGuard(#[allow(dead_code)] Option<sim::RigHandle>);
 
 /// Open the link the flags describe.
 pub async fn connect(conn: &Connection) -> Result<(Link, SimGuard)> {
+    if !(conn.time_scale.is_finite() && conn.time_scale > 0.0) {
+        bail!("--time-scale {} must be a positive number", conn.time_scale);
+    }
+    if !(conn.timeout.is_finite() && conn.timeout > 0.0) {
+        bail!("--timeout {} must be a positive number of seconds", conn.timeout);
+    }
     if conn.sim {
         let mut cfg = sim::SimConfig::seeded(conn.seed);
         cfg.speed = conn.sim_speed;
@@ -246,9 +252,6 @@ pub async fn connect(conn: &Connection) -> Result<(Link, SimGuard)> {
     };
     let path = port.to_string_lossy();
     // A CLI user waits seconds, not half a minute, for a dead port.
-    if !(conn.time_scale.is_finite() && conn.time_scale > 0.0) {
-        bail!("--time-scale {} must be a positive number", conn.time_scale);
-    }
     let config = LinkConfig {
         tries: 5,
         ..LinkConfig::scaled(conn.time_scale)

@@ -147,16 +147,16 @@ fn degrees(name: &str, v: f64) -> Result<f64> {
 }
 
 fn render(a: RenderArgs) -> Result<ExitCode> {
-    if a.camera > 7 {
+    if a.camera == 0 || a.camera > 7 {
         bail!(
-            "--camera {}: the arc has cameras 0..=7 (0 is unused, 7 looks straight down)",
+            "--camera {}: the cameras in use are 1..=7 (0, the lowest, is unused; 7 looks straight down)",
             a.camera
         );
     }
     let mut lamps = 0u8;
     for &l in &a.light {
-        if l > 7 {
-            bail!("--light {l}: the arc has lamps 0..=7");
+        if l == 0 || l > 7 {
+            bail!("--light {l}: the lamps in use are 1..=7 (lamp 0, the lowest, is not used)");
         }
         lamps |= 1 << l;
     }
@@ -177,6 +177,17 @@ fn render(a: RenderArgs) -> Result<ExitCode> {
     }
     for p in std::iter::once(&a.out).chain(&a.hdr) {
         check_file_output(p, a.force)?;
+    }
+    // Refused before the Monte Carlo, not after it.
+    let ends_in = |p: &Path, ext: &str| {
+        p.extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+    };
+    if !ends_in(&a.out, "png") {
+        bail!("--out {} must end in .png", a.out.display());
+    }
+    if let Some(h) = a.hdr.as_deref().filter(|h| !ends_in(h, "exr")) {
+        bail!("--hdr {} must end in .exr", h.display());
     }
     if !(a.gain.is_finite() && a.gain > 0.0 && a.gain <= 64.0) {
         bail!("--gain {}: expected (0, 64]", a.gain);
