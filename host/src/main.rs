@@ -54,16 +54,35 @@ fn main() -> ExitCode {
 /// Help and version go to stdout as clap prints them; a usage error becomes
 /// one `qhm:` line with clap's exit code (2).
 fn clap_error(e: clap::Error) -> ExitCode {
-    match e.kind() {
-        ErrorKind::DisplayHelp
-        | ErrorKind::DisplayVersion
-        | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
-        _ => {
-            let text = e.render().to_string();
-            eprintln!("qhm: {} (see --help)", one_line(&text));
-            ExitCode::from(e.exit_code().clamp(1, 255) as u8)
-        }
-    }
+    let text = e.render().to_string();
+    let message = match e.kind() {
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => e.exit(),
+        // `qhm capture` alone: clap would print the whole help as an error.
+        ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => missing_command(&text),
+        _ => one_line(&text),
+    };
+    eprintln!("qhm: {message} (see --help)");
+    ExitCode::from(e.exit_code().clamp(1, 255) as u8)
+}
+
+/// `qhm capture needs a command: plan, run`, from the help clap renders
+/// for a command given without its subcommand.
+fn missing_command(help: &str) -> String {
+    let usage = help
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("Usage: "))
+        .unwrap_or("qhm");
+    let command = usage.split(" [").next().unwrap_or(usage);
+    let command = command.split(" <").next().unwrap_or(command);
+    let names: Vec<&str> = help
+        .lines()
+        .skip_while(|l| l.trim() != "Commands:")
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|n| *n != "help")
+        .collect();
+    format!("{command} needs a command: {}", names.join(", "))
 }
 
 /// The error and its causes joined by `: `, each cause once: an error whose
@@ -134,6 +153,17 @@ mod tests {
             error_chain(&err),
             format!("loading model d: d/manifest.toml: {reason}")
         );
+    }
+
+    #[test]
+    fn a_missing_subcommand_names_the_choices() {
+        let help = "Capture: ...\n\nUsage: qhm capture <COMMAND>\n\nCommands:\n  plan  Print the plan\n  run   Execute\n  help  Print this message\n\nOptions:\n  -h, --help  Print help\n";
+        assert_eq!(
+            missing_command(help),
+            "qhm capture needs a command: plan, run"
+        );
+        let help = "Usage: qhm rig [OPTIONS] <COMMAND>\n\nCommands:\n  ping  Handshake\n";
+        assert_eq!(missing_command(help), "qhm rig needs a command: ping");
     }
 
     #[test]

@@ -133,8 +133,18 @@ fn check_eta(eta: f64) -> Result<(), ModelError> {
         Ok(())
     } else {
         Err(ModelError::Domain(format!(
-            "relative index eta = {eta} is outside (1, 3)"
+            "relative index eta = {} is outside (1, 3)",
+            number(eta)
         )))
+    }
+}
+
+/// A value as the user would write it: `1e300`, not 301 digits.
+fn number(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e9).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        x.to_string()
     }
 }
 
@@ -162,7 +172,8 @@ fn check_reflectance(reflectance: f64, eta: f64) -> Result<(), ModelError> {
         "not a positive number".to_string()
     };
     Err(ModelError::Domain(format!(
-        "reflectance R = {reflectance} is {why}; R must be in (0, {max:.6}] at eta = {eta}"
+        "reflectance R = {} is {why}; R must be in (0, {max:.6}] at eta = {eta}",
+        number(reflectance)
     )))
 }
 
@@ -345,10 +356,25 @@ pub fn fit_profile(
         ..profile.clone()
     };
     let profile = &entered;
-    let alpha_prime = model.albedo(reflectance / t_in, eta)?;
-    let d_max = profile.distance_mm.last().copied().unwrap_or(0.0) + profile.bin_width_mm;
-    let table = model.stripe_table(alpha_prime, eta, SIGMA_T_PRIME_MAX * d_max.max(1.0) * 1.01);
-    let (range, auto) = match range {
+    let peak = profile.intensity.iter().fold(0.0f64, |m, i| m.max(i.abs()));
+    let overflow = || {
+        ModelError::Fit(format!(
+            "no finite s'_t fits the profile (the misfit overflows: intensities reach \
+             {:.3e} mm^-1, where a profile per unit incident flux integrates to at most R)",
+            peak * t_in
+        ))
+    };
+    let too_few = |n: usize, r: (f64, f64)| {
+        ModelError::Fit(format!(
+            "only {n} profile points in the range {:.3}:{:.3} mm; at least 3 are needed",
+            r.0, r.1
+        ))
+    };
+    // What needs no light transport is checked first: solving it takes seconds.
+    if !(peak * peak).is_finite() {
+        return Err(overflow());
+    }
+    match range {
         Some(r) => {
             if !(r.0.is_finite() && r.1.is_finite() && r.0 >= 0.0 && r.1 > r.0) {
                 return Err(ModelError::Domain(format!(
@@ -356,26 +382,29 @@ pub fn fit_profile(
                     r.0, r.1
                 )));
             }
-            (r, false)
+            let n = profile.in_range(r).len();
+            if n < 3 {
+                return Err(too_few(n, r));
+            }
         }
+        None => {
+            auto_bounds(profile)?;
+        }
+    }
+    let alpha_prime = model.albedo(reflectance / t_in, eta)?;
+    let d_max = profile.distance_mm.last().copied().unwrap_or(0.0) + profile.bin_width_mm;
+    let table = model.stripe_table(alpha_prime, eta, SIGMA_T_PRIME_MAX * d_max.max(1.0) * 1.01);
+    let (range, auto) = match range {
+        Some(r) => (r, false),
         None => (auto_range(profile, &table, norm)?, true),
     };
     let idx = profile.in_range(range);
     if idx.len() < 3 {
-        return Err(ModelError::Fit(format!(
-            "only {} profile points in the range {:.3}:{:.3} mm; at least 3 are needed",
-            idx.len(),
-            range.0,
-            range.1
-        )));
+        return Err(too_few(idx.len(), range));
     }
     let (sigma_t_prime, residual) = search_sigma_t_prime(profile, &idx, &table, norm);
     if !(sigma_t_prime.is_finite() && residual.is_finite() && alpha_prime.is_finite()) {
-        let peak = profile.intensity.iter().fold(0.0f64, |m, i| m.max(i.abs())) * t_in;
-        return Err(ModelError::Fit(format!(
-            "no finite s'_t fits the profile (the misfit overflows: intensities reach \
-             {peak:.3e} mm^-1, where a profile per unit incident flux integrates to at most R)"
-        )));
+        return Err(overflow());
     }
     Ok(ProfileFit {
         model,
@@ -400,6 +429,23 @@ pub fn auto_range(
     table: &ScaledStripe,
     norm: Norm,
 ) -> Result<(f64, f64), ModelError> {
+    let (d_min0, d_max) = auto_bounds(profile)?;
+    let d = &profile.distance_mm;
+    let enough = |lo: f64| d.iter().filter(|&&x| x >= lo && x <= d_max).count() >= 5;
+    let mut d_min = d_min0;
+    for _ in 0..2 {
+        let idx = profile.in_range((d_min, d_max));
+        let (st, _) = search_sigma_t_prime(profile, &idx, table, norm);
+        let want = d_min0.max(2.0 / st);
+        // Keep at least 5 points: shrink towards the far end only while possible.
+        d_min = if enough(want) { want } else { d_min };
+    }
+    Ok((d_min, d_max))
+}
+
+/// The automatic range before its near end is refined: (near end clear of
+/// the half maximum, far end above the noise floor), or why there is none.
+fn auto_bounds(profile: &Profile) -> Result<(f64, f64), ModelError> {
     let d = &profile.distance_mm;
     let i = &profile.intensity;
     let (peak_k, peak) = i
@@ -428,15 +474,7 @@ pub fn auto_range(
              and the near field reaches {d_min0:.3} mm; pass --range"
         )));
     }
-    let mut d_min = d_min0;
-    for _ in 0..2 {
-        let idx = profile.in_range((d_min, d_max));
-        let (st, _) = search_sigma_t_prime(profile, &idx, table, norm);
-        let want = d_min0.max(2.0 / st);
-        // Keep at least 5 points: shrink towards the far end only while possible.
-        d_min = if enough(want) { want } else { d_min };
-    }
-    Ok((d_min, d_max))
+    Ok((d_min0, d_max))
 }
 
 /// Weighted sum of squared differences between I_D and the profile at `idx`.

@@ -23,7 +23,10 @@ pub enum MeshError {
     #[error("bad PLY file: {0}")]
     Ply(String),
     /// No triangles at all (or only degenerate ones).
-    #[error("mesh has no usable faces ({degenerate} degenerate faces dropped)")]
+    #[error(
+        "mesh has no usable faces{}",
+        if *degenerate == 0 { String::new() } else { format!(": all {degenerate} have zero area") }
+    )]
     NoFaces { degenerate: usize },
     /// A vertex position, normal or UV is NaN or infinite.
     #[error("mesh {what} {index} is not finite (NaN or infinity)")]

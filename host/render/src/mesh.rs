@@ -75,15 +75,22 @@ fn extent(points: impl Iterator<Item = [f32; 3]>) -> Option<f64> {
 /// Refuses a scale that is not a positive number or that puts an object of
 /// `extent` file units outside [MIN_EXTENT_MM, MAX_EXTENT_MM].
 fn check_scale(extent: Option<f64>, scale: f32) -> Result<(), MeshError> {
+    // 1e30 as the user wrote it, not 31 digits.
+    let scale_text = if scale != 0.0 && !(1e-4..1e9).contains(&scale.abs()) {
+        format!("{scale:e}")
+    } else {
+        scale.to_string()
+    };
+    let scale_text = scale_text.as_str();
     if !(scale.is_finite() && scale > 0.0) {
         return Err(MeshError::Scale(format!(
-            "mesh scale {scale} (object.scale) must be a number > 0"
+            "mesh scale {scale_text} (object.scale) must be a number > 0"
         )));
     }
     match extent.map(|e| e * f64::from(scale)) {
         Some(mm) if !(MIN_EXTENT_MM..=MAX_EXTENT_MM).contains(&mm) => {
             Err(MeshError::Scale(format!(
-                "mesh scale {scale} (object.scale) is out of range: it makes the object \
+                "mesh scale {scale_text} (object.scale) is out of range: it makes the object \
                  {mm:.3e} mm across, and it must be {MIN_EXTENT_MM} to {MAX_EXTENT_MM} mm"
             )))
         }
@@ -102,6 +109,12 @@ impl Mesh {
             return Err(MeshError::Io {
                 path: path.to_path_buf(),
                 source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+            });
+        }
+        if path.is_dir() {
+            return Err(MeshError::Io {
+                path: path.to_path_buf(),
+                source: std::io::Error::new(std::io::ErrorKind::IsADirectory, "it is a directory"),
             });
         }
         match ext.as_deref() {
@@ -336,7 +349,11 @@ fn load_obj(path: &Path) -> Result<MeshInput, MeshError> {
     };
     let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| MeshError::Obj {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        message: match e {
+            // tobj's own words for a file that is not OBJ text.
+            tobj::LoadError::ReadError => "not readable as OBJ text".into(),
+            e => e.to_string(),
+        },
     })?;
     let mut out = MeshInput::default();
     let all_normals = models
@@ -563,7 +580,12 @@ mod tests {
         std::fs::write(&p, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n").unwrap();
         for s in [1e30, 1e8, 1e-4, 0.0, -1.0, f32::NAN] {
             let e = Mesh::load(&p, s, None).unwrap_err().to_string();
-            assert!(e.contains(&format!("scale {s}")), "{s}: {e}");
+            let written = if s == 1e30 {
+                "1e30".to_string()
+            } else {
+                s.to_string()
+            };
+            assert!(e.contains(&format!("scale {written} ")), "{s}: {e}");
             let range = s > 0.0 && s.is_finite();
             assert_eq!(e.contains("0.001 to 10000000 mm"), range, "{s}: {e}");
             assert!(!e.contains("degenerate"), "{s}: {e}");
