@@ -57,6 +57,10 @@ fn clap_error(e: clap::Error) -> ExitCode {
     let text = e.render().to_string();
     let message = match e.kind() {
         ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => e.exit(),
+        // `qhm` alone asks what qhm does: the help, as clap prints it.
+        ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand if std::env::args_os().len() <= 1 => {
+            e.exit()
+        }
         // `qhm capture` alone: clap would print the whole help as an error.
         ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => missing_command(&text),
         _ => one_line(&text),
