@@ -317,20 +317,21 @@ fn log_frame(app: &App, view: &View, view_key: &str, frame: &Frame, arrived: Ins
         frame.pass_one.name(),
         arrived.elapsed().as_secs_f64() * 1e3 - frame.secs * 1e3,
     );
+    let mut refining = lock(&app.refining);
     if frame.level + 1 == LEVELS.len()
-        && let Some((key, t0)) = lock(&app.refining).take()
+        && let Some((key, t0)) = refining.as_ref()
+        && key == view_key
     {
-        if key == view_key {
-            eprintln!(
-                "qhm view: {} {}x{} {} on {}: final level (qhm render's default quality) {:.2} s after the first request",
-                app.model_name,
-                view.width,
-                view.height,
-                view.mode_name,
-                view.mesh,
-                t0.elapsed().as_secs_f64()
-            );
-        }
+        eprintln!(
+            "qhm view: {} {}x{} {} on {}: final level (qhm render's default quality) {:.2} s after the first request",
+            app.model_name,
+            view.width,
+            view.height,
+            view.mode_name,
+            view.mesh,
+            t0.elapsed().as_secs_f64()
+        );
+        *refining = None;
     }
 }
 

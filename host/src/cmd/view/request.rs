@@ -126,7 +126,7 @@ pub struct View {
 pub fn parse_view(body: &[u8], meshes: &[String], levels: usize) -> Result<View, String> {
     let r: ViewRequest =
         serde_json::from_slice(body).map_err(|e| format!("malformed request JSON: {e}"))?;
-    if !meshes.iter().any(|m| *m == r.mesh) {
+    if !meshes.contains(&r.mesh) {
         return Err(format!(
             "unknown mesh {:?} (known: {})",
             r.mesh,
