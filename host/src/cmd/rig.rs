@@ -235,7 +235,10 @@ pub async fn connect(conn: &Connection) -> Result<(Link, SimGuard)> {
         bail!("--time-scale {} must be a positive number", conn.time_scale);
     }
     if !(conn.timeout.is_finite() && conn.timeout > 0.0) {
-        bail!("--timeout {} must be a positive number of seconds", conn.timeout);
+        bail!(
+            "--timeout {} must be a positive number of seconds",
+            conn.timeout
+        );
     }
     if conn.sim {
         let mut cfg = sim::SimConfig::seeded(conn.seed);

@@ -179,10 +179,7 @@ fn render(a: RenderArgs) -> Result<ExitCode> {
         check_file_output(p, a.force)?;
     }
     // Refused before the Monte Carlo, not after it.
-    let ends_in = |p: &Path, ext: &str| {
-        p.extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case(ext))
-    };
+    let ends_in = |p: &Path, ext: &str| p.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext));
     if !ends_in(&a.out, "png") {
         bail!("--out {} must end in .png", a.out.display());
     }
