@@ -1,4 +1,4 @@
-//! The bad-input sweep: some 350 bad inputs across every `qhm` command (bad
+//! The bad-input sweep: some 460 bad inputs across every `qhm` command (bad
 //! CLI values, unknown names, missing files, directories where files are
 //! expected, empty, truncated and garbage TOML, CSV, OBJ, PLY, EXR, model
 //! manifests, capture.toml, journals, calibration and sample files). Each
