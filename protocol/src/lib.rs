@@ -1,9 +1,10 @@
 //! The qhm host <-> rig MCU protocol.
 //!
 //! - [`messages`]: the one table of messages (commands, replies, events). Its
-//!   source text is hashed into [`SCHEMA_HASH`], which the host checks on
-//!   connect, so a peer with any other message table is refused instead of
-//!   misread.
+//!   schema (every struct and enum with its fields and variants, in order;
+//!   not its comments) is hashed into [`SCHEMA_HASH`], which the host checks
+//!   on connect, so a peer with any other message table is refused instead
+//!   of misread.
 //! - [`frame`]: postcard body, CRC-16, COBS with a 0x00 delimiter, bounded size;
 //!   a streaming [`frame::FrameDecoder`] that never panics or allocates.
 //! - [`seq`]: sequence-number rules: the MCU executes each command exactly once
@@ -26,17 +27,8 @@ pub use messages::*;
 /// Version of the wire protocol. Bumped on any incompatible change.
 pub const PROTOCOL_VERSION: u16 = 1;
 
-/// FNV-1a hash of the message table's source text: any change to a message
-/// type changes it, and the host refuses a peer whose hash differs.
-pub const SCHEMA_HASH: u32 = fnv1a(include_str!("messages.rs").as_bytes());
-
-const fn fnv1a(bytes: &[u8]) -> u32 {
-    let mut h: u32 = 0x811c_9dc5;
-    let mut i = 0;
-    while i < bytes.len() {
-        h ^= bytes[i] as u32;
-        h = h.wrapping_mul(0x0100_0193);
-        i += 1;
-    }
-    h
-}
+// SCHEMA_HASH and SCHEMA_TEXT, written by build.rs from messages.rs
+// (the canonical text is defined in schema.rs): a comment edit keeps the
+// hash, any change to a name, field, type or order moves it, and the host
+// refuses a peer whose hash differs.
+include!(concat!(env!("OUT_DIR"), "/schema_hash.rs"));

@@ -1,6 +1,9 @@
 //! The message table: every command the host sends, every reply and event the
-//! MCU sends back. This file is the schema; its text is hashed into
-//! `SCHEMA_HASH`, and `docs/protocol.md` documents it message by message.
+//! MCU sends back. This file is the schema: its structs and enums (names,
+//! fields, types, variants, in order; not comments or attributes) are hashed
+//! into `SCHEMA_HASH` by `build.rs`, and `docs/protocol.md` documents it
+//! message by message. Keep it to plain struct and enum definitions with
+//! their `impl` blocks (see `schema.rs` for what counts).
 //!
 //! Wire units are integers so both ends agree bit for bit: angles in
 //! microradians (urad), speeds in urad/s, accelerations in urad/s^2, times in
