@@ -14,7 +14,7 @@
 //! the host drops its end, on [`RigHandle::shutdown`], or on a disconnect
 //! fault (the host then reads EOF).
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -29,6 +29,14 @@ use crate::{SimConfig, SimError};
 /// Longest wall time a driver sleeps without looking at the rig: bounds how
 /// late a timed MCU reply (motion done, sweep step) leaves the emulator.
 pub const MAX_IDLE_WALL: Duration = Duration::from_millis(1);
+
+/// Longest wall time one catch-up of the rig may cover. The drivers look
+/// every millisecond, so a longer gap means the emulator itself was not
+/// running (descheduled on a loaded machine, stopped): that is not rig time.
+/// A real MCU would have received the bytes that waited meanwhile on time,
+/// so the clock resumes where it stood instead of jumping past the
+/// heartbeat timeout before it sees them.
+pub const MAX_CATCH_UP_WALL: Duration = Duration::from_millis(50);
 
 /// Wall time to virtual time.
 #[derive(Debug, Clone, Copy)]
@@ -68,6 +76,8 @@ impl VirtualClock {
 struct Shared {
     port: Mutex<SimPort>,
     clock: VirtualClock,
+    /// Virtual µs the clock was held back over emulator stalls.
+    paused_us: AtomicU64,
     stop: AtomicBool,
     wake: Notify,
 }
@@ -93,6 +103,7 @@ impl RigHandle {
             shared: Arc::new(Shared {
                 port: Mutex::new(port),
                 clock,
+                paused_us: AtomicU64::new(0),
                 stop: AtomicBool::new(false),
                 wake: Notify::new(),
             }),
@@ -104,7 +115,14 @@ impl RigHandle {
         // A panic while locked leaves a consistent SimPort (every method
         // finishes its state change before it can panic), so go on.
         let mut port = self.shared.port.lock().unwrap_or_else(|e| e.into_inner());
-        let now = self.shared.clock.now_us();
+        let mut now = self.now_us();
+        let max_step = (MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64;
+        let behind = now.saturating_sub(port.now_us());
+        if behind > max_step {
+            let skipped = behind - max_step;
+            self.shared.paused_us.fetch_add(skipped, Ordering::SeqCst);
+            now -= skipped;
+        }
         port.advance_to(now);
         port
     }
@@ -156,9 +174,12 @@ impl RigHandle {
         self.with(|p| p.disconnect());
     }
 
-    /// Virtual time now, µs.
+    /// Virtual time now, µs (wall time times speed, less emulator stalls).
     pub fn now_us(&self) -> u64 {
-        self.shared.clock.now_us()
+        self.shared
+            .clock
+            .now_us()
+            .saturating_sub(self.shared.paused_us.load(Ordering::SeqCst))
     }
 
     pub fn speed(&self) -> f64 {
@@ -184,7 +205,10 @@ impl RigHandle {
         let closed = port.is_disconnected();
         drop(port);
         let wait = next
-            .map(|t| self.shared.clock.wall_until(t))
+            .map(|t| {
+                let ahead = t.saturating_sub(self.now_us()) as f64 * 1e-6 / self.speed();
+                Duration::try_from_secs_f64(ahead).unwrap_or(Duration::MAX)
+            })
             .unwrap_or(MAX_IDLE_WALL)
             .min(MAX_IDLE_WALL);
         (out, wait, closed)

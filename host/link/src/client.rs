@@ -49,6 +49,8 @@ pub struct LinkStats {
     pub resyncs: u64,
     pub resets: u64,
     pub heartbeat_failures: u64,
+    /// Read-only commands that let a due heartbeat go first while retrying.
+    pub heartbeats_first: u64,
 }
 
 /// Where a move or homing ended.
@@ -253,6 +255,8 @@ impl Link {
             active_sweep: None,
             reset_seen: false,
             dead: None,
+            last_rx: None,
+            last_beat: None,
         };
         let engine = tokio::spawn(engine.run());
         let session = Session {

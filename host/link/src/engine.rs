@@ -80,6 +80,10 @@ pub(crate) struct Engine {
     /// A Booted event (or a boot id change) was seen and not yet handled.
     pub reset_seen: bool,
     pub dead: Option<String>,
+    /// When the last frame (valid or damaged) came from the MCU.
+    pub last_rx: Option<Instant>,
+    /// When the MCU last answered a heartbeat.
+    pub last_beat: Option<Instant>,
 }
 
 impl Engine {
@@ -132,6 +136,9 @@ impl Engine {
     }
 
     fn on_wire_idle(&mut self, msg: Option<FromWire>) {
+        if matches!(msg, Some(FromWire::Frame(_) | FromWire::Bad(_))) {
+            self.last_rx = Some(Instant::now());
+        }
         match msg {
             None => self.die("reader stopped".into()),
             Some(FromWire::Closed(reason)) => self.die(reason),
@@ -170,12 +177,58 @@ impl Engine {
         }
     }
 
-    /// One command, stop and wait: send, retransmit on timeout with back-off,
-    /// return the MCU's answer. Events arriving meanwhile are handled.
+    /// One command, stop and wait: send, retransmit until the matching answer
+    /// arrives, return it. Events arriving meanwhile are handled.
+    ///
+    /// A read-only command (`Status`, `AckEvents`) that is still retrying when
+    /// a heartbeat falls due steps aside: the heartbeat goes first (the MCU
+    /// only counts executed heartbeats, and a large answer on a damaged line
+    /// may take many tries), then the command is sent again under a new
+    /// sequence number. Anything else keeps its number until answered, so it
+    /// never executes twice.
     async fn transact(
         &mut self,
         command: &Command,
     ) -> Result<Result<Reply, CommandError>, LinkError> {
+        let first_sent = Instant::now();
+        let rereadable = matches!(command, Command::Status | Command::AckEvents { .. });
+        loop {
+            let beat_due = (rereadable && self.synced)
+                .then(|| self.last_beat.unwrap_or(first_sent) + self.config.heartbeat_interval);
+            match self
+                .send_until_answered(command, first_sent, beat_due)
+                .await?
+            {
+                Some(answer) => return Ok(answer),
+                None => {
+                    self.stats(|s| s.heartbeats_first += 1);
+                    // Boxed: a heartbeat is itself a transaction (never re-read).
+                    Box::pin(self.heartbeat()).await;
+                    if self.dead.is_some() {
+                        return Err(self.disconnected());
+                    }
+                }
+            }
+        }
+    }
+
+    /// One sequence number: transmit `command` until its answer arrives.
+    /// `None` if `beat_due` passed before a retransmission (the caller sends
+    /// a heartbeat and the command again).
+    ///
+    /// A timeout after which a damaged frame arrived is line damage (the
+    /// answer was probably hit): retransmit at once, no back-off, and it does
+    /// not count against `tries`. A timeout with nothing damaged is a silent
+    /// try: back off, and `tries` of them end in `Timeout`. Whatever the line
+    /// does, the command ends `answer_timeout` after `first_sent`, and if
+    /// nothing at all arrives for `silence_timeout` the MCU is declared gone
+    /// (the link dies).
+    async fn send_until_answered(
+        &mut self,
+        command: &Command,
+        first_sent: Instant,
+        beat_due: Option<Instant>,
+    ) -> Result<Option<Result<Reply, CommandError>>, LinkError> {
         if self.dead.is_some() {
             return Err(self.disconnected());
         }
@@ -189,10 +242,16 @@ impl Engine {
         let n = encode_frame(&frame, &mut buf)
             .map_err(|e| LinkError::BadArgument(format!("cannot encode {command:?}: {e}")))?;
         let bytes = &buf[..n];
+        let give_up_at = first_sent + self.config.answer_timeout;
         let mut tries = 0;
+        let mut silent_tries = 0;
         loop {
+            if tries > 0 && beat_due.is_some_and(|t| Instant::now() >= t) {
+                return Ok(None);
+            }
             tries += 1;
             let sent_at = Instant::now();
+            tracing::trace!("send {command:?} seq {seq} try {tries}");
             // A leading delimiter flushes any garbage the MCU's decoder holds.
             let mut wire = Vec::with_capacity(n + 1);
             wire.push(0);
@@ -207,36 +266,69 @@ impl Engine {
                     s.retransmissions += 1;
                 }
             });
-            let deadline = tokio::time::Instant::from_std(sent_at + self.rtt.rto());
+            let mut retransmit_at = sent_at + self.rtt.rto();
+            let mut damaged = false;
             loop {
+                let wake = retransmit_at
+                    .min(self.silence_deadline(first_sent))
+                    .min(give_up_at);
                 tokio::select! {
-                    msg = self.wire.recv() => match msg {
-                        None => {
-                            self.die("reader stopped".into());
-                            return Err(self.disconnected());
+                    msg = self.wire.recv() => {
+                        if matches!(msg, Some(FromWire::Frame(_) | FromWire::Bad(_))) {
+                            self.last_rx = Some(Instant::now());
                         }
-                        Some(FromWire::Closed(reason)) => {
-                            self.die(reason);
-                            return Err(self.disconnected());
-                        }
-                        Some(FromWire::Bad(e)) => self.bad_frame(e),
-                        Some(FromWire::Frame(McuFrame::Ack { seq: s, result })) if s == seq => {
-                            if tries == 1 {
-                                // Karn: only unambiguous round trips are samples.
-                                self.rtt.sample(sent_at.elapsed());
+                        match msg {
+                            None => {
+                                self.die("reader stopped".into());
+                                return Err(self.disconnected());
                             }
-                            return Ok(result);
+                            Some(FromWire::Closed(reason)) => {
+                                self.die(reason);
+                                return Err(self.disconnected());
+                            }
+                            Some(FromWire::Bad(e)) => {
+                                self.bad_frame(e);
+                                // Give a frame still on its way a moment, then resend.
+                                damaged = true;
+                                retransmit_at = retransmit_at
+                                    .min(Instant::now() + self.config.min_rto);
+                            }
+                            Some(FromWire::Frame(McuFrame::Ack { seq: s, result })) if s == seq => {
+                                if tries == 1 {
+                                    // Karn: only unambiguous round trips are samples.
+                                    self.rtt.sample(sent_at.elapsed());
+                                }
+                                if matches!(command, Command::Heartbeat { .. }) {
+                                    self.last_beat = Some(Instant::now());
+                                }
+                                tracing::trace!("answer to seq {seq} after {tries} tries");
+                                return Ok(Some(result));
+                            }
+                            Some(FromWire::Frame(McuFrame::Ack { .. })) => {
+                                self.stats(|s| s.stale_acks += 1)
+                            }
+                            Some(FromWire::Frame(McuFrame::Event { eseq, at_us, event })) => {
+                                self.on_event(eseq, at_us, event)
+                            }
                         }
-                        Some(FromWire::Frame(McuFrame::Ack { .. })) => self.stats(|s| s.stale_acks += 1),
-                        Some(FromWire::Frame(McuFrame::Event { eseq, at_us, event })) => {
-                            self.on_event(eseq, at_us, event)
-                        }
-                    },
-                    _ = sleep_until(deadline) => break,
+                    }
+                    _ = sleep_until(tokio::time::Instant::from_std(wake)) => break,
                 }
             }
-            self.rtt.backoff();
-            if tries >= self.config.tries {
+            let now = Instant::now();
+            if now >= self.silence_deadline(first_sent) {
+                self.stats(|s| s.timeouts += 1);
+                self.die(format!(
+                    "the MCU stopped answering (nothing received for {:.1} s)",
+                    self.config.silence_timeout.as_secs_f64()
+                ));
+                return Err(self.disconnected());
+            }
+            if !damaged {
+                self.rtt.backoff();
+                silent_tries += 1;
+            }
+            if now >= give_up_at || silent_tries >= self.config.tries {
                 self.stats(|s| s.timeouts += 1);
                 return Err(LinkError::Timeout {
                     command: command.clone(),
@@ -244,6 +336,12 @@ impl Engine {
                 });
             }
         }
+    }
+
+    /// When the MCU counts as gone: `silence_timeout` after the last frame
+    /// received, or after `since` if that is later.
+    fn silence_deadline(&self, since: Instant) -> Instant {
+        self.last_rx.map_or(since, |t| t.max(since)) + self.config.silence_timeout
     }
 
     /// A user call: make sure the link is identified, send, interpret.
@@ -490,7 +588,16 @@ impl Engine {
 
     async fn heartbeat(&mut self) {
         let ack = self.receiver.ack_upto();
-        match self.transact(&Command::Heartbeat { event_ack: ack }).await {
+        let mut answer = self.transact(&Command::Heartbeat { event_ack: ack }).await;
+        if let Ok(Err(CommandError::OutOfSequence { expected })) = answer {
+            // The command before it never arrived (a read-only one that let
+            // this heartbeat go first): refused, not executed, so send it
+            // again at once under the expected number.
+            self.stats(|s| s.resyncs += 1);
+            self.seq = expected.wrapping_sub(1);
+            answer = self.transact(&Command::Heartbeat { event_ack: ack }).await;
+        }
+        match answer {
             Ok(Ok(_)) => self.acked = ack,
             Ok(Err(CommandError::NotIdentified)) => {
                 let err = self.recover_reset(None).await;

@@ -24,7 +24,8 @@ pub use config::LinkConfig;
 pub use error::{LinkError, fault_name};
 pub use rto::RttEstimator;
 pub use transport::{
-    BoxStream, ByteStream, Connector, DEFAULT_BAUD, SerialStream, serial_connector,
+    BAUD_RANGE, BoxStream, ByteStream, Connector, DEFAULT_BAUD, SerialStream, check_baud,
+    serial_connector,
 };
 
 pub use protocol;

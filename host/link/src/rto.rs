@@ -1,6 +1,10 @@
 //! Retransmission timeout from round-trip samples (Jacobson's SRTT/RTTVAR,
 //! RFC 6298), with Karn's rule: no sample from a retransmitted command, and
 //! the backed-off timeout is kept until a clean sample arrives.
+//!
+//! Back-off stops at twice the estimate: one command is in flight on a
+//! serial line, so a lost frame is damage, not congestion, and a longer wait
+//! only delays the retry (and the heartbeat behind it).
 
 use std::time::Duration;
 
@@ -8,6 +12,8 @@ use std::time::Duration;
 pub struct RttEstimator {
     srtt: Option<f64>,
     rttvar: f64,
+    /// The estimate before back-off.
+    base: f64,
     rto: f64,
     min: f64,
     max: f64,
@@ -19,6 +25,7 @@ impl RttEstimator {
         Self {
             srtt: None,
             rttvar: 0.0,
+            base: initial.as_secs_f64().clamp(min, max),
             rto: initial.as_secs_f64().clamp(min, max),
             min,
             max,
@@ -41,12 +48,15 @@ impl RttEstimator {
             }
         }
         let srtt = self.srtt.unwrap_or(r);
-        self.rto = (srtt + 4.0 * self.rttvar).clamp(self.min, self.max);
+        self.base = (srtt + 4.0 * self.rttvar).clamp(self.min, self.max);
+        self.rto = self.base;
     }
 
-    /// A timeout expired: double the timeout (exponential back-off).
+    /// A timeout expired: double the timeout, up to twice the estimate.
     pub fn backoff(&mut self) {
-        self.rto = (self.rto * 2.0).clamp(self.min, self.max);
+        self.rto = (self.rto * 2.0)
+            .min(2.0 * self.base)
+            .clamp(self.min, self.max);
     }
 
     pub fn rto(&self) -> Duration {
@@ -81,14 +91,21 @@ mod tests {
     }
 
     #[test]
-    fn backoff_doubles_up_to_max() {
+    fn backoff_doubles_up_to_twice_the_estimate_and_max() {
         let mut e = RttEstimator::new(ms(1000), ms(25), ms(5000));
         e.backoff();
         assert_eq!(e.rto(), ms(2000));
         e.backoff();
+        assert_eq!(e.rto(), ms(2000));
+        let mut e = RttEstimator::new(ms(3000), ms(25), ms(5000));
         e.backoff();
         assert_eq!(e.rto(), ms(5000));
         e.sample(ms(10));
         assert!(e.rto() < ms(100));
+        let rto = e.rto();
+        for _ in 0..5 {
+            e.backoff();
+        }
+        assert_eq!(e.rto(), 2 * rto);
     }
 }

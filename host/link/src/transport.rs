@@ -35,19 +35,39 @@ pub type Connector = Arc<
 /// Default baud rate (the Nucleo's ST-LINK virtual COM port).
 pub const DEFAULT_BAUD: u32 = 115_200;
 
+/// Baud rates a UART can run at: from the slowest rate termios names (50)
+/// to the fastest USB-serial adapters (FT232H, 12 Mbaud; the STM32F446's
+/// USART tops out near 11 Mbaud).
+pub const BAUD_RANGE: std::ops::RangeInclusive<u32> = 50..=12_000_000;
+
+/// `baud` if a UART can run at it, else the sentence that says why not.
+pub fn check_baud(baud: u32) -> Result<u32, String> {
+    if BAUD_RANGE.contains(&baud) {
+        Ok(baud)
+    } else {
+        Err(format!(
+            "baud rate {baud} is not one a UART can run at: give {} to {} bits/s",
+            BAUD_RANGE.start(),
+            BAUD_RANGE.end()
+        ))
+    }
+}
+
 /// A serial device as a tokio stream.
 pub struct SerialStream {
     fd: AsyncFd<serialport::TTYPort>,
 }
 
 impl SerialStream {
-    /// Open `path` raw 8N1 at `baud`, no flow control, exclusive. Must be
+    /// Open `path` raw 8N1 at `baud`, no flow control, exclusive, with
+    /// whatever the device received while nobody listened discarded. Must be
     /// called inside a tokio runtime (the fd joins its reactor).
     pub fn open(path: &str, baud: u32) -> Result<Self, LinkError> {
         let err = |reason: String| LinkError::Open {
             path: path.to_string(),
             reason,
         };
+        check_baud(baud).map_err(err)?;
         let port = serialport::new(path, baud)
             .data_bits(serialport::DataBits::Eight)
             .parity(serialport::Parity::None)
@@ -55,6 +75,10 @@ impl SerialStream {
             .flow_control(serialport::FlowControl::None)
             .timeout(Duration::from_millis(10))
             .open_native()
+            .map_err(|e| err(e.description))?;
+        // Bytes the MCU sent to nobody (re-sent events, answers to a previous
+        // session) would only be decoded and thrown away.
+        serialport::SerialPort::clear(&port, serialport::ClearBuffer::Input)
             .map_err(|e| err(e.description))?;
         // SAFETY: the fd belongs to `port`, which outlives this borrow.
         let fd = unsafe { BorrowedFd::borrow_raw(port.as_raw_fd()) };

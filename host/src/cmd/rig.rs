@@ -25,8 +25,8 @@ pub struct Connection {
     /// Serial device of the MCU (e.g. /dev/ttyACM0, or the path `qhm sim --pty` printed).
     #[arg(long, global = true, conflicts_with = "sim")]
     pub port: Option<PathBuf>,
-    /// Baud rate of the serial device.
-    #[arg(long, global = true, default_value_t = DEFAULT_BAUD)]
+    /// Baud rate of the serial device (50 to 12000000).
+    #[arg(long, global = true, default_value_t = DEFAULT_BAUD, value_parser = parse_baud)]
     pub baud: u32,
     /// Use the built-in emulated rig (in process) instead of a serial device.
     #[arg(long, global = true)]
@@ -178,6 +178,13 @@ pub enum LaserArg {
     Off,
 }
 
+fn parse_baud(s: &str) -> Result<u32, String> {
+    let baud: u32 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a baud rate: give a whole number of bits/s"))?;
+    qhm_link::check_baud(baud)
+}
+
 /// Parse a line mask: decimal, 0x.., 0b.., `all` or `none`.
 pub fn parse_mask(s: &str) -> Result<u8> {
     let s = s.trim();
@@ -254,11 +261,9 @@ pub async fn connect(conn: &Connection) -> Result<(Link, SimGuard)> {
         bail!("say where the rig is: --port PATH (serial device) or --sim (built-in emulated rig)");
     };
     let path = port.to_string_lossy();
-    // A CLI user waits seconds, not half a minute, for a dead port.
-    let config = LinkConfig {
-        tries: 5,
-        ..LinkConfig::scaled(conn.time_scale)
-    };
+    // A dead port fails within the silence bound (3 s), a damaged line is
+    // retried; timeouts cover a full-size frame each way at the baud rate.
+    let config = LinkConfig::for_line(conn.baud, conn.time_scale);
     let link = Link::open_serial(&path, conn.baud, config)
         .await
         .with_context(|| format!("rig on {path}"))?;
