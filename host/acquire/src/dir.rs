@@ -122,6 +122,12 @@ pub fn plan_sha256(plan: &Plan) -> String {
     hex(&Sha256::digest(&json))
 }
 
+/// sha256 of `data`, hex (names a file's content, e.g. the calibration a
+/// rectified shard was made with).
+pub fn sha256_hex(data: &[u8]) -> String {
+    hex(&Sha256::digest(data))
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -433,6 +439,67 @@ impl CaptureDir {
         Ok(dir)
     }
 
+    /// Opens a capture to read it, beside other readers (a shared lock: many
+    /// `qhm rectify --shard` processes at once; refused while a run writes
+    /// it). Nothing is repaired, and frames are not checked here: see
+    /// [`CaptureDir::verify_frames_where`].
+    pub fn open_read(root: &Path) -> Result<CaptureDir, DirError> {
+        let mpath = root.join(MANIFEST);
+        if !mpath.exists() {
+            return Err(if root.is_dir() {
+                DirError::Foreign(root.to_path_buf())
+            } else {
+                DirError::BadManifest {
+                    path: mpath,
+                    why: "missing".into(),
+                }
+            });
+        }
+        let manifest = Manifest::read(root)?;
+        if manifest.format != FORMAT || manifest.version != VERSION {
+            return Err(DirError::BadManifest {
+                path: mpath,
+                why: format!(
+                    "format {:?} version {} (expected {FORMAT:?} version {VERSION})",
+                    manifest.format, manifest.version
+                ),
+            });
+        }
+        let plan = Plan::new(manifest.plan.clone())?;
+        if plan_sha256(&plan) != manifest.plan_sha256 {
+            return Err(DirError::BadManifest {
+                path: mpath,
+                why: "plan_sha256 does not match its plan (edited, or another qhm version)".into(),
+            });
+        }
+        let jpath = root.join(JOURNAL);
+        let journal = File::open(&jpath).map_err(io_err(&jpath))?;
+        journal.try_lock_shared().map_err(|e| match e {
+            fs::TryLockError::WouldBlock => DirError::Locked(root.to_path_buf()),
+            fs::TryLockError::Error(source) => DirError::Io {
+                path: jpath.clone(),
+                source,
+            },
+        })?;
+        let raw = fs::read(&jpath).map_err(io_err(&jpath))?;
+        let mut dir = CaptureDir {
+            root: root.to_path_buf(),
+            manifest,
+            journal,
+            frames: BTreeMap::new(),
+            steps_done: 0,
+            complete: false,
+        };
+        dir.replay(&raw, &plan)?;
+        Ok(dir)
+    }
+
+    /// Checks the size and sha256 of the journaled frames whose path
+    /// (relative to the capture) `wanted` accepts.
+    pub fn verify_frames_where(&self, wanted: impl Fn(&str) -> bool) -> Result<(), DirError> {
+        self.verify(self.frames.values().filter(|r| wanted(&r.path)))
+    }
+
     /// Reads the journal; returns how many bytes of it are whole lines.
     fn replay(&mut self, raw: &[u8], plan: &Plan) -> Result<usize, DirError> {
         let jpath = self.root.join(JOURNAL);
@@ -521,7 +588,11 @@ impl CaptureDir {
 
     /// Checks every journaled frame's size and sha256.
     fn verify_frames(&self) -> Result<(), DirError> {
-        for rec in self.frames.values() {
+        self.verify(self.frames.values())
+    }
+
+    fn verify<'a>(&self, records: impl Iterator<Item = &'a FrameRecord>) -> Result<(), DirError> {
+        for rec in records {
             let path = self.root.join(&rec.path);
             let bad = |why: String| DirError::BadFrame {
                 path: self.root.clone(),

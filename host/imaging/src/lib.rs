@@ -29,6 +29,7 @@ pub mod pipeline;
 pub mod rectified;
 pub mod rectify;
 pub mod response;
+pub mod shards;
 #[cfg(feature = "sim")]
 pub mod sim_cal;
 pub mod synth;

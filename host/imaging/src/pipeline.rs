@@ -18,6 +18,7 @@ use crate::image::{Image8, ImageF};
 use crate::rectified::{Index, LampEntry, StripeEntry, Writer};
 use crate::rectify::{self, Grid};
 use crate::response::ResponseCurve;
+use crate::shards::{Shard, ShardIndex, ShardSource, ShardWriter};
 use crate::{Error, Result};
 
 /// What lit a shot.
@@ -252,6 +253,56 @@ pub fn rectify_capture(
             }
             done += 1;
             progress(done, shots.len());
+        }
+    }
+    writer.finish()
+}
+
+/// Process share `shard` of the shots (see the `shards` module) into `out`
+/// (CAPTURE_DIR/rectified), each image under its number in the whole
+/// dataset; `force` as for [`ShardWriter::create`]. `progress(done, total)`
+/// counts this share's shots.
+#[allow(clippy::too_many_arguments)]
+pub fn rectify_shard(
+    shots: &[Shot],
+    cal: &Calibration,
+    opts: &RectifyOptions,
+    out: &Path,
+    shard: Shard,
+    source: ShardSource,
+    force: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<ShardIndex> {
+    // A shot's image number is its rank among the shots of its kind, as the
+    // unsharded writer numbers them.
+    let (mut stripes, mut lamps) = (0, 0);
+    let numbers: Vec<usize> = shots
+        .iter()
+        .map(|s| {
+            let counter = match s.light {
+                ShotLight::Laser { .. } => &mut stripes,
+                ShotLight::Lamp { .. } => &mut lamps,
+            };
+            *counter += 1;
+            *counter - 1
+        })
+        .collect();
+    let mine: Vec<usize> = (0..shots.len()).filter(|&i| shard.takes(i)).collect();
+    let mut writer = ShardWriter::create(out, opts.grid, shard, source, stripes, lamps, force)?;
+    writer.set_calibration(crate::rectified::CalibrationSummary::of(cal));
+    let mut done = 0;
+    for chunk in mine.chunks(64) {
+        let results: Vec<Result<Rectified>> = chunk
+            .par_iter()
+            .map(|&i| process_shot(&shots[i], cal, opts))
+            .collect();
+        for (&i, r) in chunk.iter().zip(results) {
+            match r? {
+                Rectified::Stripe(img, e) => writer.add_stripe(numbers[i], &img, e)?,
+                Rectified::Lamp(img, e) => writer.add_lamp(numbers[i], &img, e)?,
+            }
+            done += 1;
+            progress(done, mine.len());
         }
     }
     writer.finish()

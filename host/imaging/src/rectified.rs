@@ -179,7 +179,7 @@ impl Writer {
         if root.join("index.toml").exists() {
             return Err(Error::Format {
                 path: root.join("index.toml"),
-                msg: "a rectified dataset is already there; remove it to rectify again".into(),
+                msg: "a rectified dataset is already there; pass --force to rectify again".into(),
             });
         }
         for sub in ["stripes", "lamps"] {
@@ -219,7 +219,7 @@ impl Writer {
     /// Add a stripe image; `entry.file` is filled in.
     pub fn add_stripe(&mut self, img: &ImageF, mut entry: StripeEntry) -> Result<()> {
         self.check(img)?;
-        entry.file = format!("stripes/{:06}.exr", self.index.stripe.len());
+        entry.file = stripe_file(self.index.stripe.len());
         exr_io::write_rgb(&self.root.join(&entry.file), img)?;
         self.index.stripe.push(entry);
         Ok(())
@@ -228,26 +228,41 @@ impl Writer {
     /// Add a lamp image; `entry.file` is filled in.
     pub fn add_lamp(&mut self, img: &ImageF, mut entry: LampEntry) -> Result<()> {
         self.check(img)?;
-        entry.file = format!("lamps/{:06}.exr", self.index.lamp.len());
+        entry.file = lamp_file(self.index.lamp.len());
         exr_io::write_rgb(&self.root.join(&entry.file), img)?;
         self.index.lamp.push(entry);
         Ok(())
     }
 
     pub fn finish(self) -> Result<Index> {
-        let p = self.root.join("index.toml");
-        let text = toml::to_string_pretty(&self.index).map_err(|e| Error::Format {
-            path: p.clone(),
-            msg: e.to_string(),
-        })?;
-        let tmp = self.root.join("index.toml.tmp");
-        std::fs::write(&tmp, text).map_err(|source| Error::Io {
-            path: tmp.clone(),
-            source,
-        })?;
-        std::fs::rename(&tmp, &p).map_err(|source| Error::Io { path: p, source })?;
+        write_index(&self.root, &self.index)?;
         Ok(self.index)
     }
+}
+
+/// The file of the `n`-th stripe image of a dataset (0-based).
+pub fn stripe_file(n: usize) -> String {
+    format!("stripes/{n:06}.exr")
+}
+
+/// The file of the `n`-th lamp image of a dataset (0-based).
+pub fn lamp_file(n: usize) -> String {
+    format!("lamps/{n:06}.exr")
+}
+
+/// Writes `root/index.toml` atomically (a temporary file, then a rename).
+pub fn write_index(root: &Path, index: &Index) -> Result<()> {
+    let p = root.join("index.toml");
+    let text = toml::to_string_pretty(index).map_err(|e| Error::Format {
+        path: p.clone(),
+        msg: e.to_string(),
+    })?;
+    let tmp = root.join("index.toml.tmp");
+    std::fs::write(&tmp, text).map_err(|source| Error::Io {
+        path: tmp.clone(),
+        source,
+    })?;
+    std::fs::rename(&tmp, &p).map_err(|source| Error::Io { path: p, source })
 }
 
 /// Read and check `root/index.toml`.
