@@ -20,7 +20,7 @@ use qhm_acquire::{
 };
 use qhm_imaging::Calibration;
 use qhm_imaging::pipeline::rectify_capture;
-use qhm_imaging::sim_cal::SimCalibrator;
+use qhm_imaging::sim_cal::{Row, SimCalibrator};
 use qhm_model::fit::{FitOptions, fit_capture_with_progress};
 use qhm_model::{DipoleParams, MaterialModel};
 use qhm_progress::Bar;
@@ -270,11 +270,21 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
         let mut cal = Calibration::load_or_default(&cal_path)?;
         cal.source = format!("sim seed {} scale {}", opts.seed, opts.scale.name());
         let mut rows = Vec::new();
-        sim.response(&mut cal, &mut rows)?;
-        sim.geometry(&mut cal, &mut rows)?;
-        sim.colour(&mut cal, &mut rows)?;
-        sim.lamps(&mut cal, &mut rows)?;
-        sim.laser(&mut cal, &mut rows)?;
+        type CalStep = fn(&SimCalibrator, &mut Calibration, &mut Vec<Row>) -> Result<()>;
+        let steps: [(&str, CalStep); 5] = [
+            ("response", |s, c, r| Ok(s.response(c, r)?)),
+            ("geometry", |s, c, r| Ok(s.geometry(c, r)?)),
+            ("colour", |s, c, r| Ok(s.colour(c, r)?)),
+            ("lamps", |s, c, r| Ok(s.lamps(c, r)?)),
+            ("laser", |s, c, r| Ok(s.laser(c, r)?)),
+        ];
+        let b = Bar::new("calibrate", steps.len() as u64, opts.quiet);
+        for (name, step) in steps {
+            b.set_message(name);
+            step(&sim, &mut cal, &mut rows)?;
+            b.inc(1);
+        }
+        b.finish();
         cal.save(&cal_path)?;
         if !opts.quiet {
             for r in &rows {

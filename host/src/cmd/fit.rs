@@ -188,8 +188,14 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
     // Refuse the output before the fit's work, not after it.
     let staged = StagedDir::begin(&args.output, OutputKind::Model, args.force)?;
     let t = std::time::Instant::now();
-    let (model, timings) = qhm_model::fit::fit_capture(&args.capture_dir, &opts)
+    let bar = qhm_progress::Bar::new("fit", 0, false);
+    let (model, timings) =
+        qhm_model::fit::fit_capture_with_progress(&args.capture_dir, &opts, &|done, total| {
+            bar.set_total(total as u64);
+            bar.set_position(done as u64)
+        })
         .with_context(|| format!("fitting {}", args.capture_dir.display()))?;
+    bar.finish();
     let report = model
         .save_with(
             staged.path(),
