@@ -18,6 +18,13 @@
 //! The journal holds nothing that depends on time or arrival order (frames are
 //! appended in plan order), so a resumed capture is byte-identical to an
 //! uninterrupted one.
+//!
+//! A capture can be taken in shares (`qhm capture run --sim --shard K/N`, one
+//! process or machine each): share K of N takes the steps whose index mod N
+//! is K - 1, into its own capture directory `CAPTURE_DIR/shards/K-of-N/`
+//! (capture.toml says `shard = [K, N]`; its journal lists only its steps).
+//! [`merge_shards`] joins the N finished shares into CAPTURE_DIR, whose
+//! capture.toml, journal and frames are then those of an unsharded run.
 
 use std::collections::BTreeMap;
 use std::fs::{self, File, OpenOptions};
@@ -35,6 +42,8 @@ pub const FORMAT: &str = "qhm-capture";
 pub const VERSION: u32 = 1;
 const MANIFEST: &str = "capture.toml";
 const JOURNAL: &str = "journal";
+/// Folder of the shares of a capture taken in shares.
+pub const SHARDS: &str = "shards";
 
 /// What capture.toml holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -49,6 +58,10 @@ pub struct Manifest {
     pub seed: u64,
     /// sha256 of the plan's steps, hex: resume refuses a different plan.
     pub plan_sha256: String,
+    /// `[K, N]` in a share's own directory (see the module docs); absent in a
+    /// whole capture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<[u32; 2]>,
     pub plan: PlanConfig,
 }
 
@@ -61,6 +74,7 @@ impl Manifest {
             sample: sample.into(),
             seed,
             plan_sha256: plan_sha256(plan),
+            shard: None,
             plan: plan.config.clone(),
         }
     }
@@ -96,12 +110,25 @@ impl Manifest {
             .map_or("(a plan of no named scale)".into(), |s| {
                 format!("--scale {}", s.name())
             });
+        let shard = self
+            .shard
+            .map_or(String::new(), |[k, n]| format!(" --shard {k}/{n}"));
         format!(
-            "{rig} {scale} --sample {} --seed {}",
+            "{rig} {scale} --sample {} --seed {}{shard}",
             shell_word(&self.sample),
             self.seed
         )
     }
+
+    /// Whether this capture (or share) takes plan step `index`.
+    pub fn takes(&self, index: u32) -> bool {
+        self.shard.is_none_or(|[k, n]| index % n == k - 1)
+    }
+}
+
+/// Where share `k` of `n` of the capture in `root` is written.
+pub fn shard_dir(root: &Path, k: u32, n: u32) -> PathBuf {
+    root.join(SHARDS).join(format!("{k}-of-{n}"))
 }
 
 /// `w` quoted for a POSIX shell if it needs it.
@@ -185,6 +212,10 @@ pub enum DirError {
     /// The stored plan does not build.
     #[error("{0}")]
     Plan(#[from] PlanError),
+    /// The shares of a capture cannot be merged (missing, unfinished, of
+    /// another capture, or the capture is already there).
+    #[error("{path}: {why}")]
+    Shards { path: PathBuf, why: String },
 }
 
 /// Key of a frame: (step, scan position, camera).
@@ -205,6 +236,8 @@ pub struct CaptureDir {
     journal: File,
     frames: BTreeMap<FrameKey, FrameRecord>,
     steps_done: u32,
+    /// Steps in the plan.
+    plan_len: u32,
     complete: bool,
 }
 
@@ -332,14 +365,18 @@ impl CaptureDir {
             .and_then(|_| journal.sync_all())
             .map_err(io_err(&jpath))?;
         sync_dir(root)?;
-        Ok(CaptureDir {
+        let plan_len = Plan::new(manifest.plan.clone())?.steps.len() as u32;
+        let mut dir = CaptureDir {
             root: root.to_path_buf(),
             manifest,
             journal,
             frames: BTreeMap::new(),
             steps_done: 0,
+            plan_len,
             complete: false,
-        })
+        };
+        dir.steps_done = dir.next_step(0);
+        Ok(dir)
     }
 
     /// Opens an existing capture to resume it; `expect` must match its manifest
@@ -398,6 +435,12 @@ impl CaptureDir {
                 ))
             } else if want.rig != manifest.rig {
                 Some(("rig", manifest.rig.clone(), want.rig.clone()))
+            } else if want.shard != manifest.shard {
+                let share = |m: &Manifest| {
+                    m.shard
+                        .map_or("the whole plan".into(), |[k, n]| format!("--shard {k}/{n}"))
+                };
+                Some(("share", share(&manifest), share(want)))
             } else {
                 None
             };
@@ -424,6 +467,7 @@ impl CaptureDir {
             journal,
             frames: BTreeMap::new(),
             steps_done: 0,
+            plan_len: plan.steps.len() as u32,
             complete: false,
         };
         let keep = dir.replay(&raw, &plan)?;
@@ -488,6 +532,7 @@ impl CaptureDir {
             journal,
             frames: BTreeMap::new(),
             steps_done: 0,
+            plan_len: plan.steps.len() as u32,
             complete: false,
         };
         dir.replay(&raw, &plan)?;
@@ -509,6 +554,7 @@ impl CaptureDir {
             why: why.into(),
         };
         let whole = raw.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+        self.steps_done = self.next_step(0);
         let text = std::str::from_utf8(&raw[..whole]).map_err(|_| corrupt(0, "not UTF-8"))?;
         for (i, line) in text.lines().enumerate() {
             let n = i + 1;
@@ -567,7 +613,7 @@ impl CaptureDir {
                     if have != step.frames() {
                         return Err(corrupt(n, "step marked done with frames missing"));
                     }
-                    self.steps_done += 1;
+                    self.steps_done = self.next_step(self.steps_done + 1);
                 }
                 (_, ["complete", count]) => {
                     if self.steps_done as usize != plan.steps.len()
@@ -617,9 +663,27 @@ impl CaptureDir {
     pub fn plan(&self) -> Result<Plan, DirError> {
         Ok(Plan::new(self.manifest.plan.clone())?)
     }
-    /// Steps finished (all their frames journaled): resume starts at this index.
+    /// The next step to run (all before it are finished, or another
+    /// share's): resume starts at this index; the plan's length when done.
     pub fn steps_done(&self) -> u32 {
         self.steps_done
+    }
+    /// Whether this capture (or share) takes plan step `index`.
+    pub fn takes(&self, index: u32) -> bool {
+        self.manifest.takes(index)
+    }
+    /// Frames this capture (or share) takes of its plan.
+    pub fn planned_frames(&self, plan: &Plan) -> usize {
+        (plan.steps.iter())
+            .filter(|s| self.takes(s.index))
+            .map(|s| s.frames())
+            .sum()
+    }
+    /// The first step at or after `from` that this capture takes.
+    fn next_step(&self, from: u32) -> u32 {
+        (from..self.plan_len)
+            .find(|&i| self.takes(i))
+            .unwrap_or(self.plan_len)
     }
     pub fn is_complete(&self) -> bool {
         self.complete
@@ -668,7 +732,7 @@ impl CaptureDir {
     pub fn step_done(&mut self, step: u32) -> Result<(), DirError> {
         debug_assert_eq!(step, self.steps_done);
         self.append(&format!("step {step}"))?;
-        self.steps_done += 1;
+        self.steps_done = self.next_step(step + 1);
         Ok(())
     }
 
@@ -686,6 +750,172 @@ impl CaptureDir {
             .and_then(|_| self.journal.sync_data())
             .map_err(io_err(&path))
     }
+}
+
+/// The share directories `K-of-N` in `root/shards`, as (k, n, path).
+pub fn list_shards(root: &Path) -> Result<Vec<(u32, u32, PathBuf)>, DirError> {
+    let dir = root.join(SHARDS);
+    let Ok(entries) = fs::read_dir(&dir) else {
+        return Ok(Vec::new());
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        let e = e.map_err(io_err(&dir))?;
+        let name = e.file_name();
+        let parsed = name.to_str().and_then(|n| {
+            let (k, n) = n.split_once("-of-")?;
+            Some((k.parse::<u32>().ok()?, n.parse::<u32>().ok()?))
+        });
+        if let Some((k, n)) = parsed.filter(|&(k, n)| k >= 1 && k <= n)
+            && e.path().is_dir()
+        {
+            out.push((k, n, e.path()));
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Joins the N finished shares in `root/shards/` into the capture `root`
+/// (module docs): its capture.toml, journal and frames (hard links, or
+/// copies) become those of an unsharded run, and the shares are removed.
+/// Refuses, naming what is wrong, a `root` that already holds a capture,
+/// missing or unfinished shares, shares of several splits, and shares of
+/// another capture.
+pub fn merge_shards(root: &Path) -> Result<CaptureDir, DirError> {
+    let refuse = |path: &Path, why: String| DirError::Shards {
+        path: path.to_path_buf(),
+        why,
+    };
+    if root.join(MANIFEST).exists() {
+        return Err(refuse(
+            root,
+            "already holds a capture (capture.toml); nothing to merge".into(),
+        ));
+    }
+    let found = list_shards(root)?;
+    let splits: std::collections::BTreeSet<u32> = found.iter().map(|s| s.1).collect();
+    let shards_dir = root.join(SHARDS);
+    let n = match splits.len() {
+        0 => {
+            return Err(refuse(
+                &shards_dir,
+                "no shares to merge; run `qhm capture run --sim --shard K/N` into this directory for K = 1..N first".into(),
+            ));
+        }
+        1 => *splits.first().expect("one split"),
+        _ => {
+            let ns: Vec<String> = splits.iter().map(|n| n.to_string()).collect();
+            return Err(refuse(
+                &shards_dir,
+                format!(
+                    "holds shares of several splits (N = {}); remove the ones not wanted",
+                    ns.join(", ")
+                ),
+            ));
+        }
+    };
+    let missing: Vec<String> = (1..=n)
+        .filter(|k| !found.iter().any(|s| s.0 == *k))
+        .map(|k| format!("{k}/{n}"))
+        .collect();
+    if !missing.is_empty() {
+        return Err(refuse(
+            &shards_dir,
+            format!(
+                "missing share{} {} of {n}; run `qhm capture run --sim --shard K/{n}` for each",
+                if missing.len() == 1 { "" } else { "s" },
+                missing.join(", ")
+            ),
+        ));
+    }
+    let mut shares = Vec::new();
+    for (k, n, path) in &found {
+        let d = CaptureDir::open(path, None)?;
+        if d.manifest.shard != Some([*k, *n]) {
+            return Err(refuse(
+                path,
+                format!("is not share {k}/{n} (its capture.toml says otherwise)"),
+            ));
+        }
+        if !d.is_complete() {
+            return Err(refuse(
+                path,
+                format!(
+                    "share {k}/{n} is not finished; continue it with `qhm capture run {} --resume -o {}`",
+                    d.manifest.run_args(),
+                    shell_word(&root.to_string_lossy())
+                ),
+            ));
+        }
+        shares.push(d);
+    }
+    let whole = |m: &Manifest| Manifest {
+        shard: None,
+        ..m.clone()
+    };
+    let manifest = whole(&shares[0].manifest);
+    for (d, (k, n, path)) in shares.iter().zip(&found) {
+        if whole(&d.manifest) != manifest {
+            return Err(refuse(
+                path,
+                format!(
+                    "share {k}/{n} is of another capture (plan, seed, sample or rig) than share 1/{n}"
+                ),
+            ));
+        }
+    }
+    let plan = Plan::new(manifest.plan.clone())?;
+    // The journal an unsharded run writes: every step's frames trigger by
+    // trigger in the step's camera order, then the step; then `complete`.
+    let mut journal = seal(&format!("qhm-journal {VERSION} {}", manifest.plan_sha256));
+    let mut count = 0;
+    let mut dirs = std::collections::BTreeSet::new();
+    for step in &plan.steps {
+        let share = &shares[(step.index % n) as usize];
+        for k in 0..step.triggers() {
+            for &c in &step.cameras {
+                let key = (step.index, k as u32, c);
+                let rec = share.frames.get(&key).ok_or_else(|| {
+                    refuse(
+                        share.root(),
+                        format!("frame {key:?} is missing from its journal"),
+                    )
+                })?;
+                journal += &seal(&format!(
+                    "frame {} {} {} {} {} {}",
+                    key.0, key.1, key.2, rec.sha256, rec.bytes, rec.path
+                ));
+                let (from, to) = (share.root.join(&rec.path), root.join(&rec.path));
+                let parent = to.parent().unwrap_or(root).to_path_buf();
+                if dirs.insert(parent.clone()) {
+                    fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+                }
+                // A merge interrupted before its journal may have linked it already.
+                let _ = fs::remove_file(&to);
+                if fs::hard_link(&from, &to).is_err() {
+                    fs::copy(&from, &to).map_err(io_err(&to))?;
+                }
+                count += 1;
+            }
+        }
+        journal += &seal(&format!("step {}", step.index));
+    }
+    journal += &seal(&format!("complete {count}"));
+    for d in &dirs {
+        sync_dir(d)?;
+    }
+    // capture.toml last: until it is there, the merge can simply be run again.
+    write_durably(root, JOURNAL, journal.as_bytes())?;
+    let text = toml::to_string(&manifest).map_err(|e| DirError::BadManifest {
+        path: root.join(MANIFEST),
+        why: e.to_string(),
+    })?;
+    write_durably(root, MANIFEST, text.as_bytes())?;
+    drop(shares);
+    fs::remove_dir_all(&shards_dir).map_err(io_err(&shards_dir))?;
+    sync_dir(root)?;
+    CaptureDir::open(root, None)
 }
 
 /// Whether `dir` (if it exists) holds no files but `*.tmp` ones.

@@ -1,4 +1,4 @@
-//! Executing a capture plan through the link and the cameras.
+//! Executing a capture plan (or one share of it) through the link and the cameras.
 //!
 //! [`run_capture`] continues from the capture directory's last finished step
 //! (so a fresh run and `--resume` are the same code), and for each step:
@@ -131,17 +131,22 @@ pub async fn run_capture(
     for (i, c) in cameras.iter().enumerate() {
         by_index.insert(c.info().index, i);
     }
-    for s in &plan.steps {
+    for s in plan.steps.iter().filter(|s| dir.takes(s.index)) {
         for c in s.cameras.iter().copied() {
             by_index.get(&c).ok_or(RunError::MissingCamera(c))?;
         }
     }
     let mut report = RunReport::default();
-    progress.start(plan.frames(), dir.frame_count());
+    progress.start(dir.planned_frames(&plan), dir.frame_count());
     let mut rig = RigCache::default();
     let mut settings: BTreeMap<u8, CameraSettings> = BTreeMap::new();
     let start = dir.steps_done() as usize;
-    for step in &plan.steps[start..] {
+    // A share of the capture runs only its own steps (dir module docs).
+    let manifest = dir.manifest().clone();
+    for step in plan.steps[start..]
+        .iter()
+        .filter(|s| manifest.takes(s.index))
+    {
         if opts.stop_after_steps.is_some_and(|n| report.steps_run >= n) {
             break;
         }

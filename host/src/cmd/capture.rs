@@ -1,7 +1,10 @@
 //! `qhm capture plan|run`: the capture plan of paper Fig. 4 (frames, disk,
 //! rig time against a mechanical lower bound) and its execution on the
 //! built-in simulated rig (`--sim`) or a real rig (`--port` + GenICam cameras),
-//! into a crash-safe, resumable capture directory.
+//! into a crash-safe, resumable capture directory. A simulated capture can
+//! be taken in shares (`--shard K/N`, one process or machine each, e.g. a
+//! Slurm job array) and joined with `--merge` into the directory an
+//! unsharded run writes (qhm_acquire::dir).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -9,13 +12,14 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use qhm_acquire::dir::shell_word;
+use qhm_acquire::dir::{merge_shards, shard_dir, shell_word};
 use qhm_acquire::plan::Step;
 use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
 use qhm_acquire::{
     Camera, CaptureDir, ConsoleOperator, DirError, Manifest, Operator, Plan, PlanConfig, Progress,
     RunOptions, Scale, SimRig, run_capture, safe_off,
 };
+use qhm_imaging::shards::Shard;
 use qhm_progress::Bar;
 
 #[derive(Args, Debug)]
@@ -76,6 +80,14 @@ pub struct RunArgs {
     /// No progress bars (logs and CI).
     #[arg(long)]
     pub quiet: bool,
+    /// Simulated rig: take only share K of N of the plan's steps (1 <= K <= N),
+    /// into OUT/shards/K-of-N/; join the N shares with `--merge`.
+    #[arg(long, value_name = "K/N", requires = "sim")]
+    pub shard: Option<Shard>,
+    /// Join the N finished shares in OUT/shards/ into the capture OUT, as
+    /// one unsharded run writes it (no rig needed).
+    #[arg(long, conflicts_with_all = ["sim", "port", "shard", "resume"])]
+    pub merge: bool,
 }
 
 pub fn run(args: CaptureArgs) -> Result<ExitCode> {
@@ -222,9 +234,9 @@ fn resume_command(m: &Manifest, a: &RunArgs) -> String {
 
 /// A capture directory's refusal, with the command that resumes it where
 /// there is one to resume.
-fn dir_error(e: DirError, a: &RunArgs) -> anyhow::Error {
+fn dir_error(e: DirError, out: &std::path::Path, a: &RunArgs) -> anyhow::Error {
     let hint = match &e {
-        DirError::Exists(_) | DirError::Mismatch { .. } => Manifest::read(&a.out)
+        DirError::Exists(_) | DirError::Mismatch { .. } => Manifest::read(out)
             .ok()
             .map(|m| format!("; to continue it: `{}`", resume_command(&m, a))),
         _ => None,
@@ -270,6 +282,16 @@ fn check_cameras_given(plan: &Plan, specs: &[String]) -> Result<()> {
 }
 
 async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
+    if a.merge {
+        let d = merge_shards(&a.out)
+            .with_context(|| format!("merging the shares of {}", a.out.display()))?;
+        eprintln!(
+            "{}: shares merged: {} frames, capture complete",
+            a.out.display(),
+            d.frame_count()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let scale: Scale = a.scale.parse()?;
     if !(a.frame_timeout.is_finite() && a.frame_timeout > 0.0) {
         bail!("--frame-timeout must be a positive number of seconds");
@@ -283,27 +305,52 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     if a.port.is_some() {
         check_cameras_given(&plan, &a.cameras)?;
     }
-    let manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
+    let mut manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
+    // A share is a capture directory of its own inside OUT/shards/.
+    let out = match a.shard {
+        Some(s) => {
+            if a.out.join("capture.toml").exists() {
+                bail!(
+                    "{} already holds a whole capture; shares go into a directory of their own",
+                    a.out.display()
+                );
+            }
+            if let Ok(entries) = std::fs::read_dir(&a.out)
+                && let Some(other) = entries
+                    .flatten()
+                    .find(|e| e.file_name() != qhm_acquire::dir::SHARDS)
+            {
+                bail!(
+                    "{} holds {} and is not a capture taken in shares; refusing to write into it",
+                    a.out.display(),
+                    other.file_name().to_string_lossy()
+                );
+            }
+            manifest.shard = Some([s.k as u32, s.n as u32]);
+            shard_dir(&a.out, s.k as u32, s.n as u32)
+        }
+        None => a.out.clone(),
+    };
     // Refuse foreign, corrupt or mismatching directories before touching the
     // rig. A new capture's directory is made only once the rig and cameras
     // are up, so a failed start leaves nothing; a capture that never took a
     // frame is started anew, whatever it was asked to measure.
-    let resuming = a.resume && !CaptureDir::is_unstarted(&a.out).unwrap_or(false);
+    let resuming = a.resume && !CaptureDir::is_unstarted(&out).unwrap_or(false);
     let opened = if resuming {
-        let d = CaptureDir::open(&a.out, Some(&manifest))
-            .map_err(|e| dir_error(e, &a))
-            .with_context(|| format!("cannot resume {}", a.out.display()))?;
+        let d = CaptureDir::open(&out, Some(&manifest))
+            .map_err(|e| dir_error(e, &out, &a))
+            .with_context(|| format!("cannot resume {}", out.display()))?;
         if d.is_complete() {
             eprintln!(
                 "{}: capture already complete ({} frames)",
-                a.out.display(),
+                out.display(),
                 d.frame_count()
             );
             return Ok(ExitCode::SUCCESS);
         }
         Some(d)
     } else {
-        CaptureDir::check_new(&a.out).map_err(|e| dir_error(e, &a))?;
+        CaptureDir::check_new(&out).map_err(|e| dir_error(e, &out, &a))?;
         None
     };
     let mut opts = RunOptions {
@@ -344,10 +391,10 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
             .with_context(|| format!("opening the rig on {}", port.display()))?;
         (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
     };
-    let made_out = !a.out.exists();
+    let made_out = !out.exists();
     let mut dir = match opened {
         Some(d) => d,
-        None => CaptureDir::create(&a.out, manifest).map_err(|e| dir_error(e, &a))?,
+        None => CaptureDir::create(&out, manifest).map_err(|e| dir_error(e, &out, &a))?,
     };
     let cameras: &mut [Box<dyn Camera>] = match sim_rig.as_mut() {
         Some(r) => &mut r.cameras,
@@ -370,21 +417,24 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     };
     bars.bar.finish();
     let resume = resume_command(dir.manifest(), &a);
+    let planned = dir.planned_frames(&plan);
     let stopped = |dir: CaptureDir| -> Result<String> {
         let n = dir.frame_count();
         Ok(if dir.discard_if_unstarted()? {
             if made_out {
-                let _ = std::fs::remove_dir(&a.out);
+                let _ = std::fs::remove_dir(&out);
+                if a.shard.is_some() {
+                    // The shards folder and OUT, if this share made them and they are empty.
+                    let _ = std::fs::remove_dir(a.out.join(qhm_acquire::dir::SHARDS));
+                    let _ = std::fs::remove_dir(&a.out);
+                }
             }
             format!(
                 "no frame was taken; {} is left as it was before",
-                a.out.display()
+                out.display()
             )
         } else {
-            format!(
-                "{n} of {} frames are safely on disk; continue with `{resume}`",
-                plan.frames()
-            )
+            format!("{n} of {planned} frames are safely on disk; continue with `{resume}`")
         })
     };
     match outcome {
@@ -409,6 +459,13 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
                 dir.frame_count(),
                 report.resets_recovered
             );
+            if let Some(s) = a.shard.filter(|_| report.complete) {
+                eprintln!(
+                    "share {s} done; once all {} are, join them with `qhm capture run --merge -o {}`",
+                    s.n,
+                    shell_word(&a.out.to_string_lossy())
+                );
+            }
             Ok(ExitCode::SUCCESS)
         }
     }
