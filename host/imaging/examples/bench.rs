@@ -3,7 +3,8 @@
 //! `cargo run --release -p qhm-imaging --example bench -- [OUT_DIR]`
 //! Writes OUT_DIR/bracket_{k}.png, OUT_DIR/exposures.txt and OUT_DIR/qhm_hdr.exr,
 //! prints megapixels per second per core and the extrapolation to a
-//! paper-scale capture.
+//! paper-scale capture on one core and on a 16-core node, against the
+//! bound of reading the capture from disk.
 
 use std::time::Instant;
 
@@ -18,9 +19,17 @@ use qhm_imaging::{exr_io, synth};
 /// Brackets of a paper-scale capture (qhm-acquire's `paper` plan: pass 1
 /// 3 colours x 5 clamps x 12 arc x 4 turntable x 32 scan x 4 cameras; pass 2
 /// 3 x 12 turntable x 32 scan x 7 cameras; pass 3 12 arc x 12 turntable x
-/// 7 lamps x 7 cameras), with 4 laser and 3 lamp exposures per bracket.
+/// 7 lamps x 7 cameras), with 6 laser and 3 lamp exposures per bracket:
+/// 622,512 frames of 1024 x 768.
 const PAPER_LASER_BRACKETS: f64 = (3 * 5 * 12 * 4 * 32 * 4 + 3 * 12 * 32 * 7) as f64;
 const PAPER_LAMP_BRACKETS: f64 = (12 * 12 * 7 * 7) as f64;
+const PAPER_FRAMES: f64 = PAPER_LASER_BRACKETS * 6.0 + PAPER_LAMP_BRACKETS * 3.0;
+/// Its disk at most (`qhm capture plan --scale paper`), bytes, and a disk
+/// (or parallel file system) read rate, bytes/s: the physical floor.
+const PAPER_DISK_BYTES: f64 = 1469.81e9;
+const DISK_READ_BYTES_PER_S: f64 = 2e9;
+/// Cores of the node the extrapolation names.
+const NODE_CORES: f64 = 16.0;
 
 fn time<F: FnMut()>(reps: usize, mut f: F) -> f64 {
     f(); // warm up
@@ -120,6 +129,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     println!("response fit (3 channels): MN {fit_s:.3} s, DM {fit_dm_s:.3} s");
 
+    // PNG decoding of the bracket's frames, as `qhm rectify` reads them.
+    let pngs: Vec<Vec<u8>> = (0..times.len())
+        .map(|k| std::fs::read(out.join(format!("bracket_{k}.png"))))
+        .collect::<Result<_, _>>()?;
+    let decode_s = time(5, || {
+        for p in &pngs {
+            drop(image::load_from_memory(p).map(|i| i.to_rgb8()));
+        }
+    }) / pngs.len() as f64;
+    let frame_mp = (w * h) as f64 / 1e6;
+    println!(
+        "PNG decode: {:.1} ms per 1024x768 frame ({:.1} MP/s), one thread",
+        decode_s * 1e3,
+        frame_mp / decode_s
+    );
     let cores = rayon::current_num_threads();
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let mp_in = (w * h * times.len()) as f64 / 1e6;
@@ -156,14 +180,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             mp_in / per_bracket / threads as f64
         );
         if threads == 1 {
-            // Laser brackets have 4 frames, lamp brackets 3: scale the merge part.
-            let total = PAPER_LASER_BRACKETS * per_bracket
-                + PAPER_LAMP_BRACKETS * (merge_s * 3.0 / 4.0 + rect_s);
+            // The merge scales with the frames of a bracket (6 laser, 3 lamp
+            // exposures), the rectification is per bracket.
+            let merge_per_frame = merge_s / times.len() as f64;
+            let brackets = PAPER_LASER_BRACKETS + PAPER_LAMP_BRACKETS;
+            let compute = PAPER_FRAMES * merge_per_frame + brackets * rect_s;
+            let with_decode = compute + PAPER_FRAMES * decode_s;
+            let disk = PAPER_DISK_BYTES / DISK_READ_BYTES_PER_S;
+            let input_mp = PAPER_FRAMES * frame_mp;
             println!(
-                "paper-scale capture ({} brackets, full-res frames): {:.2} h on one core, {:.2} h on {cores} cores (paper: ~4 h); PNG decoding not included",
-                PAPER_LASER_BRACKETS + PAPER_LAMP_BRACKETS,
-                total / 3600.0,
-                total / 3600.0 / cores as f64
+                "paper-scale capture ({PAPER_FRAMES} frames in {brackets} brackets, {:.0} input MP): HDR + rectify {:.2} h on one core ({:.1} input MP/s per core), {:.2} h with PNG decoding ({:.1} MP/s per core)",
+                input_mp,
+                compute / 3600.0,
+                input_mp / compute,
+                with_decode / 3600.0,
+                input_mp / with_decode
+            );
+            println!(
+                "  on a {NODE_CORES}-core node (one shard per core): {:.1} min, {:.1} min with PNG decoding; reading {:.2} TB at {:.0} GB/s takes {:.1} min (the floor)",
+                compute / NODE_CORES / 60.0,
+                with_decode / NODE_CORES / 60.0,
+                PAPER_DISK_BYTES / 1e12,
+                DISK_READ_BYTES_PER_S / 1e9,
+                disk / 60.0
             );
         }
     }
