@@ -219,6 +219,7 @@ fn merge_refuses_missing_shards_and_shards_refuse_redo_and_bad_values() {
         &["rectify", c, "--shard", "1/3", "--width-mm", "30"],
         &["2-of-3.toml", "other settings"],
     );
+    refused(&["rectify", c], &["holds shards", "--merge", "--force"]);
     assert_eq!(
         snapshot(&cap.join("rectified")),
         before,

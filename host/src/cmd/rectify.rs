@@ -163,6 +163,12 @@ pub fn run(args: RectifyArgs) -> anyhow::Result<ExitCode> {
     }
     if args.force {
         remove_dataset(&out)?;
+    } else if out.join(SHARDS_DIR).is_dir() {
+        bail!(
+            "{} holds shards of a sharded run; complete it with `qhm rectify {} --merge`, or pass --force to rectify it whole",
+            out.display(),
+            root.display()
+        );
     }
     let bar = qhm_progress::Bar::new("rectify", shots.len() as u64, false);
     let idx = rectify_capture(&shots, &cal, &opts, &out, &|done, _| {
