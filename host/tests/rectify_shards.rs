@@ -136,17 +136,20 @@ fn synthetic_capture(root: &Path) -> PathBuf {
 
 use image::ImageEncoder;
 
+/// GNU parallel, not moreutils' command of the same name.
 fn has_parallel() -> bool {
     Command::new("parallel")
         .arg("--version")
         .output()
-        .is_ok_and(|o| o.status.success())
+        .is_ok_and(|o| {
+            o.status.success() && String::from_utf8_lossy(&o.stdout).contains("GNU parallel")
+        })
 }
 
 #[test]
 fn shards_run_by_gnu_parallel_and_merged_equal_the_unsharded_run() {
     if !has_parallel() {
-        eprintln!("SKIPPED: GNU parallel is not installed (apt-get install parallel)");
+        eprintln!("SKIPPED: GNU parallel is not installed (Debian: apt-get install parallel)");
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
