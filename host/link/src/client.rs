@@ -227,6 +227,13 @@ impl Link {
             }
         });
         let seq = *self.inner.seq.lock().unwrap_or_else(|p| p.into_inner());
+        // A reconnect to the same boot goes on delivering after the last
+        // event delivered (the MCU re-sends the unacknowledged ones).
+        let delivered = self.inner.shared.lock().ok().and_then(|s| s.delivered_upto);
+        let mut receiver = protocol::seq::EventReceiver::default();
+        if let Some(upto) = delivered {
+            receiver.reset(upto);
+        }
         let engine = Engine {
             rtt: RttEstimator::new(config.initial_rto, config.min_rto, config.max_rto),
             config,
@@ -237,8 +244,8 @@ impl Link {
             requests: req_rx,
             beats: beat_rx,
             seq,
-            receiver: Default::default(),
-            acked: 0,
+            receiver,
+            acked: delivered.unwrap_or(0),
             synced: false,
             held: Vec::new(),
             gap_since: None,
@@ -255,7 +262,7 @@ impl Link {
             active_sweep: None,
             reset_seen: false,
             dead: None,
-            last_rx: None,
+            silent_since: None,
             last_beat: None,
         };
         let engine = tokio::spawn(engine.run());

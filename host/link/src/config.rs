@@ -19,12 +19,14 @@ pub struct LinkConfig {
     /// Silent tries of one command (timeouts with no damaged frame received,
     /// i.e. the request or the whole answer vanished) before
     /// `LinkError::Timeout`. Tries whose answer arrived damaged do not count.
+    /// The default is high enough that a silent MCU meets `silence_timeout`
+    /// first (and the link reports it gone rather than one command lost).
     pub tries: u32,
     /// Longest time one command may take, however many tries (a line so
     /// damaged that no answer gets through): then `LinkError::Timeout`.
     pub answer_timeout: Duration,
     /// Nothing at all (no frame, valid or damaged) received from the MCU for
-    /// this long while a command or heartbeat waits: the MCU stopped
+    /// this long after a command or heartbeat was sent: the MCU stopped
     /// answering (frozen, unplugged, powered off). The link dies with
     /// `LinkError::Disconnected`; `reconnect()` may revive it.
     pub silence_timeout: Duration,
@@ -44,7 +46,7 @@ impl Default for LinkConfig {
             initial_rto: Duration::from_millis(200),
             min_rto: Duration::from_millis(25),
             max_rto: Duration::from_secs(1),
-            tries: 10,
+            tries: 100,
             answer_timeout: Duration::from_secs(10),
             silence_timeout: Duration::from_secs(3),
             event_capacity: 4096,

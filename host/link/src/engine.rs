@@ -45,6 +45,8 @@ pub(crate) struct Shared {
     pub motion_done: [Option<(u16, i32, bool)>; 2],
     /// Newest SweepDone: (eseq, completed).
     pub sweep_done: Option<(u16, bool)>,
+    /// Newest event delivered (this boot), so a reconnect goes on from it.
+    pub delivered_upto: Option<u16>,
     /// A reset noticed between calls, reported once to the next caller.
     pub pending_reset: Option<LinkError>,
     pub stats: LinkStats,
@@ -80,8 +82,8 @@ pub(crate) struct Engine {
     /// A Booted event (or a boot id change) was seen and not yet handled.
     pub reset_seen: bool,
     pub dead: Option<String>,
-    /// When the last frame (valid or damaged) came from the MCU.
-    pub last_rx: Option<Instant>,
+    /// Since when frames have been sent with nothing at all received back.
+    pub silent_since: Option<Instant>,
     /// When the MCU last answered a heartbeat.
     pub last_beat: Option<Instant>,
 }
@@ -137,7 +139,7 @@ impl Engine {
 
     fn on_wire_idle(&mut self, msg: Option<FromWire>) {
         if matches!(msg, Some(FromWire::Frame(_) | FromWire::Bad(_))) {
-            self.last_rx = Some(Instant::now());
+            self.silent_since = None;
         }
         match msg {
             None => self.die("reader stopped".into()),
@@ -252,6 +254,7 @@ impl Engine {
             tries += 1;
             let sent_at = Instant::now();
             tracing::trace!("send {command:?} seq {seq} try {tries}");
+            self.silent_since.get_or_insert(sent_at);
             // A leading delimiter flushes any garbage the MCU's decoder holds.
             let mut wire = Vec::with_capacity(n + 1);
             wire.push(0);
@@ -269,13 +272,11 @@ impl Engine {
             let mut retransmit_at = sent_at + self.rtt.rto();
             let mut damaged = false;
             loop {
-                let wake = retransmit_at
-                    .min(self.silence_deadline(first_sent))
-                    .min(give_up_at);
+                let wake = retransmit_at.min(self.silence_deadline()).min(give_up_at);
                 tokio::select! {
                     msg = self.wire.recv() => {
                         if matches!(msg, Some(FromWire::Frame(_) | FromWire::Bad(_))) {
-                            self.last_rx = Some(Instant::now());
+                            self.silent_since = None;
                         }
                         match msg {
                             None => {
@@ -316,7 +317,7 @@ impl Engine {
                 }
             }
             let now = Instant::now();
-            if now >= self.silence_deadline(first_sent) {
+            if now >= self.silence_deadline() {
                 self.stats(|s| s.timeouts += 1);
                 self.die(format!(
                     "the MCU stopped answering (nothing received for {:.1} s)",
@@ -338,10 +339,10 @@ impl Engine {
         }
     }
 
-    /// When the MCU counts as gone: `silence_timeout` after the last frame
-    /// received, or after `since` if that is later.
-    fn silence_deadline(&self, since: Instant) -> Instant {
-        self.last_rx.map_or(since, |t| t.max(since)) + self.config.silence_timeout
+    /// When the MCU counts as gone: `silence_timeout` after the first frame
+    /// sent since anything at all was received.
+    fn silence_deadline(&self) -> Instant {
+        self.silent_since.unwrap_or_else(Instant::now) + self.config.silence_timeout
     }
 
     /// A user call: make sure the link is identified, send, interpret.
@@ -516,6 +517,9 @@ impl Engine {
             // effect); acknowledge them so the MCU stops re-sending.
             if self.booted_base.take() != Some(id.boot_id) {
                 self.receiver.reset(status.last_eseq);
+                if let Ok(mut s) = self.shared.lock() {
+                    s.delivered_upto = Some(status.last_eseq);
+                }
                 self.acked = status.last_eseq.wrapping_sub(1);
             }
             self.held.clear();
@@ -730,6 +734,9 @@ impl Engine {
 
     fn deliver(&mut self, eseq: u16, at_us: u64, event: Event) {
         self.receiver.accept(eseq);
+        if let Ok(mut s) = self.shared.lock() {
+            s.delivered_upto = Some(eseq);
+        }
         match event {
             Event::MotionDone {
                 axis,

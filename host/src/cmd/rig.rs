@@ -226,10 +226,50 @@ pub fn run(args: RigArgs) -> Result<ExitCode> {
     }
     rt.block_on(async move {
         let (link, _sim) = connect(&args.conn).await?;
+        let connected = (Instant::now(), link.last_status().map(|s| s.uptime_us));
         let timeout = Duration::from_secs_f64(args.conn.timeout.max(0.0));
         let r = act(&link, args.action, timeout).await;
+        let r = match r {
+            Err(e) if args.conn.port.is_some() => {
+                match clock_hint(&link, connected, args.conn.time_scale).await {
+                    Some(hint) => Err(anyhow::anyhow!("{e:#}; {hint}")),
+                    None => Err(e),
+                }
+            }
+            r => r,
+        };
         link.close();
         r
+    })
+}
+
+/// After a failure on a serial rig: if the MCU's clock runs at another rate
+/// than `--time-scale` says (an emulated rig served with `--speed`), the
+/// heartbeat was too slow for it; say what to pass.
+async fn clock_hint(
+    link: &Link,
+    (t0, uptime0): (Instant, Option<u64>),
+    time_scale: f64,
+) -> Option<String> {
+    let uptime0 = uptime0?;
+    // A rate needs some wall time to be measured against.
+    let wait = Duration::from_millis(300).saturating_sub(t0.elapsed());
+    tokio::time::sleep(wait).await;
+    let status = tokio::time::timeout(Duration::from_secs(2), link.status())
+        .await
+        .ok()?
+        .ok()?;
+    if status.uptime_us < uptime0 {
+        return None; // rebooted meanwhile
+    }
+    let rate = (status.uptime_us - uptime0) as f64 * 1e-6 / t0.elapsed().as_secs_f64();
+    let ratio = rate / time_scale;
+    (!(0.67..=1.5).contains(&ratio)).then(|| {
+        format!(
+            "the rig's clock runs {rate:.1} times as fast as real time but --time-scale is {time_scale}, \
+             so the heartbeat is too slow for it: pass --time-scale {:.0} (the --speed of `qhm sim --pty`)",
+            rate.round().max(1.0)
+        )
     })
 }
 
@@ -416,8 +456,22 @@ async fn act(link: &Link, action: RigAction, timeout: Duration) -> Result<ExitCo
                         status.fault
                     );
                 }
-                // The heartbeat task keeps the MCU's laser permission alive.
-                tokio::time::sleep(Duration::from_secs_f64(secs)).await;
+                // The heartbeat task keeps the MCU's laser permission alive;
+                // a link that dies meanwhile ends the wait at once.
+                let mut events = link.subscribe();
+                let lost = async {
+                    loop {
+                        match events.recv().await {
+                            Ok(qhm_link::LinkEvent::Disconnected { reason }) => break reason,
+                            Err(qhm_link::LinkError::Disconnected { reason }) => break reason,
+                            _ => {}
+                        }
+                    }
+                };
+                tokio::select! {
+                    _ = tokio::time::sleep(Duration::from_secs_f64(secs)) => {}
+                    reason = lost => bail!("link to the MCU lost while the laser was on: {reason}"),
+                }
                 link.laser_arm(false).await?;
             }
         }
