@@ -1,6 +1,7 @@
 //! The cloneable link handle: opening, typed calls, event subscription and the
 //! event-driven wait helpers.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use protocol::seq::seq_after;
@@ -90,11 +91,16 @@ impl EventStream {
 
 struct Session {
     requests: mpsc::Sender<Request>,
+    /// Engine first: it goes before the reader and writer it watches.
     tasks: Vec<JoinHandle<()>>,
+    /// Set before the tasks stop, so the engine does not report its stream's
+    /// end to the subscribers as a lost link (they outlive the session).
+    retired: Arc<AtomicBool>,
 }
 
 impl Drop for Session {
     fn drop(&mut self) {
+        self.retired.store(true, Ordering::SeqCst);
         for t in &self.tasks {
             t.abort();
         }
@@ -234,7 +240,9 @@ impl Link {
         if let Some(upto) = delivered {
             receiver.reset(upto);
         }
+        let retired = Arc::new(AtomicBool::new(false));
         let engine = Engine {
+            retired: retired.clone(),
             rtt: RttEstimator::new(config.initial_rto, config.min_rto, config.max_rto),
             config,
             shared: self.inner.shared.clone(),
@@ -268,7 +276,8 @@ impl Link {
         let engine = tokio::spawn(engine.run());
         let session = Session {
             requests: req_tx,
-            tasks: vec![reader, writer, heart, engine],
+            tasks: vec![engine, reader, writer, heart],
+            retired,
         };
         *self.inner.session.lock().unwrap_or_else(|p| p.into_inner()) = Some(session);
     }
@@ -294,6 +303,8 @@ impl Link {
         // serial port is opened exclusively.
         if let Some(mut old) = old {
             let tasks = std::mem::take(&mut old.tasks);
+            // Retired before anything stops: the subscribers stay with the
+            // handle and must not read this stream's end as a lost link.
             drop(old);
             for t in tasks {
                 t.abort();

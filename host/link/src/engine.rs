@@ -3,6 +3,7 @@
 //! timeout, interleaves heartbeats and event acknowledgements between
 //! commands, and recovers from MCU resets without re-issuing anything.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -82,6 +83,9 @@ pub(crate) struct Engine {
     /// A Booted event (or a boot id change) was seen and not yet handled.
     pub reset_seen: bool,
     pub dead: Option<String>,
+    /// The handle ended this session on purpose (`reconnect()`, `close()`):
+    /// the stream closing is not news for the subscribers.
+    pub retired: Arc<AtomicBool>,
     /// Since when frames have been sent with nothing at all received back.
     pub silent_since: Option<Instant>,
     /// When the MCU last answered a heartbeat.
@@ -158,7 +162,10 @@ impl Engine {
     }
 
     fn die(&mut self, reason: String) {
-        if self.dead.is_none() {
+        if self.dead.is_none() && self.retired.load(Ordering::SeqCst) {
+            self.dead = Some(reason);
+            self.synced = false;
+        } else if self.dead.is_none() {
             // "reader stopped" is the runtime shutting down, not news.
             if reason == "reader stopped" {
                 tracing::debug!("link lost: {reason}");
