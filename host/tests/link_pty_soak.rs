@@ -50,7 +50,7 @@ fn serve(args: &[&str]) -> (Server, String) {
 
 /// Collect the pulse widths of TriggerFired events, and anything that says
 /// events went missing.
-fn count_triggers(link: &Link) -> tokio::task::JoinHandle<(Vec<u32>, Vec<LinkEvent>)> {
+fn count_triggers(link: &Link) -> TriggerCounter {
     let mut events = link.subscribe();
     tokio::spawn(async move {
         let (mut fired, mut problems) = (Vec::new(), Vec::new());
@@ -72,10 +72,11 @@ fn count_triggers(link: &Link) -> tokio::task::JoinHandle<(Vec<u32>, Vec<LinkEve
     })
 }
 
-/// `commands` calls over the faulty pty at `speed`: a fresh session (new
-/// handle, new numbering, the device reopened, a handshake) every 100
-/// commands. (`reconnect()` on the same handle is left out: events raised
-/// after it are not delivered yet.) Returns the link counters summed.
+/// `commands` calls over the faulty pty at `speed`: a new session every 100
+/// commands, alternately a fresh one (new handle, new numbering, the device
+/// reopened, a handshake) and `reconnect()` on the same handle (the device
+/// reopened, a handshake, the subscription kept). Returns the link counters
+/// summed.
 fn soak(commands: u32, speed: f64, seed: u64) -> (u64, u64) {
     let speed_arg = speed.to_string();
     let seed_arg = seed.to_string();
@@ -102,20 +103,30 @@ fn soak(commands: u32, speed: f64, seed: u64) -> (u64, u64) {
         let mut pulse = 0u32;
         let mut lamps = 0u8;
         let mut i = 0;
+        let mut current: Option<(Link, TriggerCounter, u32)> = None;
+        let mut session = 0;
         while i < commands {
+            let reuse = session % 2 == 1;
+            session += 1;
+            if !reuse && let Some((link, counter, first_pulse)) = current.take() {
+                retransmissions += finish(link, counter, first_pulse..=pulse).await;
+            }
             // The previous session's tasks release the device as they end.
-            let mut opened = Link::open_serial(&port, qhm_link::DEFAULT_BAUD, config.clone()).await;
+            let mut opened = connect(&port, &config, current.as_ref().map(|c| &c.0)).await;
             for _ in 0..50 {
                 if !matches!(opened, Err(qhm_link::LinkError::Open { .. })) {
                     break;
                 }
                 tokio::time::sleep(Duration::from_millis(20)).await;
-                opened = Link::open_serial(&port, qhm_link::DEFAULT_BAUD, config.clone()).await;
+                opened = connect(&port, &config, current.as_ref().map(|c| &c.0)).await;
             }
-            let link = opened.unwrap_or_else(|e| panic!("session at command {i}: {e}"));
+            let opened = opened.unwrap_or_else(|e| panic!("session at command {i}: {e}"));
             handshakes += 1;
-            let counter = count_triggers(&link);
-            let first_pulse = pulse + 1;
+            if let Some(link) = opened {
+                let counter = count_triggers(&link);
+                current = Some((link, counter, pulse + 1));
+            }
+            let link = &current.as_ref().unwrap().0;
             let session_end = (i + 100).min(commands);
             while i < session_end {
                 let r = match i % 5 {
@@ -136,21 +147,46 @@ fn soak(commands: u32, speed: f64, seed: u64) -> (u64, u64) {
                 i += 1;
             }
             link.laser_select(LaserColour::Green).await.unwrap();
-            settle(&link).await;
-            let stats = link.stats();
-            retransmissions += stats.retransmissions;
-            assert_eq!(stats.resets, 0, "{stats:?}");
-            link.close();
-            // The last handle gone ends the event stream.
-            drop(link);
-            let (fired, problems) = counter.await.unwrap();
-            assert!(problems.is_empty(), "{problems:?}");
-            let want: Vec<u32> = (first_pulse..=pulse).collect();
-            assert_eq!(fired, want, "triggers executed once each, in order");
+            settle(link).await;
+        }
+        if let Some((link, counter, first_pulse)) = current.take() {
+            retransmissions += finish(link, counter, first_pulse..=pulse).await;
         }
     });
     drop(server);
     (retransmissions, handshakes)
+}
+
+type TriggerCounter = tokio::task::JoinHandle<(Vec<u32>, Vec<LinkEvent>)>;
+
+/// A fresh handle (`Some`), or `reconnect()` on `reuse` (`None`).
+async fn connect(
+    port: &str,
+    config: &LinkConfig,
+    reuse: Option<&Link>,
+) -> Result<Option<Link>, qhm_link::LinkError> {
+    match reuse {
+        Some(link) => link.reconnect().await.map(|_| None),
+        None => Link::open_serial(port, qhm_link::DEFAULT_BAUD, config.clone())
+            .await
+            .map(Some),
+    }
+}
+
+/// End a handle's sessions: no reset, and every trigger sent through it
+/// (`want`, by pulse width) delivered once, in order, reconnects included.
+/// Returns its retransmissions.
+async fn finish(link: Link, counter: TriggerCounter, want: std::ops::RangeInclusive<u32>) -> u64 {
+    let stats = link.stats();
+    assert_eq!(stats.resets, 0, "{stats:?}");
+    link.close();
+    // The last handle gone ends the event stream.
+    drop(link);
+    let (fired, problems) = counter.await.unwrap();
+    assert!(problems.is_empty(), "{problems:?}");
+    let want: Vec<u32> = want.collect();
+    assert_eq!(fired, want, "triggers executed once each, in order");
+    stats.retransmissions
 }
 
 /// Wait until the rig has raised and the link delivered every event so far
