@@ -4,8 +4,10 @@
 //! `qhm fit` on an unrectified capture says to rectify it. None of these runs
 //! a capture (seconds in all); crash-resume is tests/tests/capture_resume.rs.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+mod cli_util;
+use cli_util::snapshot;
+
+use std::path::Path;
 use std::process::Command;
 
 use qhm_acquire::{CaptureDir, Manifest, Plan, PlanConfig, Scale};
@@ -31,22 +33,6 @@ fn refused(args: &[&str], want: &[&str]) -> String {
         );
     }
     text
-}
-
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(p.clone(), std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
 }
 
 fn s(p: &Path) -> &str {

@@ -3,7 +3,9 @@
 //! left untouched; `--force` replaces it and keeps no stale files; a
 //! directory that holds something else is refused even with `--force`.
 
-use std::collections::BTreeMap;
+mod cli_util;
+use cli_util::snapshot;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -39,26 +41,6 @@ fn refused(args: &[impl AsRef<std::ffi::OsStr> + std::fmt::Debug], want: &[&str]
     }
     assert_eq!(text.trim().lines().count(), 1, "one-line message: {text}");
     text
-}
-
-/// Every file under `root` with its bytes (also names the hidden ones).
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(
-                    p.strip_prefix(root).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
 }
 
 fn s(p: &Path) -> &str {

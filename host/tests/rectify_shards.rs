@@ -5,7 +5,9 @@
 //! one line. The capture is a small synthetic one (the `ci` plan at 8x
 //! binning, frames drawn here rather than simulated, so it takes a second).
 
-use std::collections::BTreeMap;
+mod cli_util;
+use cli_util::snapshot;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -39,26 +41,6 @@ fn refused(args: &[&str], want: &[&str]) -> String {
         assert!(text.contains(w), "qhm {args:?}: lacks {w:?}: {text}");
     }
     text
-}
-
-/// Every file under `root` with its bytes.
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(
-                    p.strip_prefix(root).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
 }
 
 /// Copies the capture (frames, journal, manifest, calibration), not its rectified/.
