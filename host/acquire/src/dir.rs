@@ -396,23 +396,7 @@ impl CaptureDir {
                 DirError::Foreign(root.to_path_buf())
             });
         }
-        let manifest = Manifest::read(root)?;
-        if manifest.format != FORMAT || manifest.version != VERSION {
-            return Err(DirError::BadManifest {
-                path: mpath,
-                why: format!(
-                    "format {:?} version {} (expected {FORMAT:?} version {VERSION})",
-                    manifest.format, manifest.version
-                ),
-            });
-        }
-        let plan = Plan::new(manifest.plan.clone())?;
-        if plan_sha256(&plan) != manifest.plan_sha256 {
-            return Err(DirError::BadManifest {
-                path: mpath,
-                why: "plan_sha256 does not match its plan (edited, or another qhm version)".into(),
-            });
-        }
+        let (manifest, plan) = read_manifest_and_plan(root, mpath)?;
         if let Some(want) = expect {
             let scale = |m: &Manifest| {
                 m.scale().map_or("a plan of no named scale".into(), |s| {
@@ -499,23 +483,7 @@ impl CaptureDir {
                 }
             });
         }
-        let manifest = Manifest::read(root)?;
-        if manifest.format != FORMAT || manifest.version != VERSION {
-            return Err(DirError::BadManifest {
-                path: mpath,
-                why: format!(
-                    "format {:?} version {} (expected {FORMAT:?} version {VERSION})",
-                    manifest.format, manifest.version
-                ),
-            });
-        }
-        let plan = Plan::new(manifest.plan.clone())?;
-        if plan_sha256(&plan) != manifest.plan_sha256 {
-            return Err(DirError::BadManifest {
-                path: mpath,
-                why: "plan_sha256 does not match its plan (edited, or another qhm version)".into(),
-            });
-        }
+        let (manifest, plan) = read_manifest_and_plan(root, mpath)?;
         let jpath = root.join(JOURNAL);
         let journal = File::open(&jpath).map_err(io_err(&jpath))?;
         journal.try_lock_shared().map_err(|e| match e {
@@ -981,6 +949,29 @@ fn sync_dir(dir: &Path) -> Result<(), DirError> {
     File::open(dir)
         .and_then(|d| d.sync_all())
         .map_err(io_err(dir))
+}
+
+/// The capture's manifest and its plan, checked: this format and version,
+/// and a plan that still hashes to the recorded `plan_sha256`.
+fn read_manifest_and_plan(root: &Path, mpath: PathBuf) -> Result<(Manifest, Plan), DirError> {
+    let manifest = Manifest::read(root)?;
+    if manifest.format != FORMAT || manifest.version != VERSION {
+        return Err(DirError::BadManifest {
+            path: mpath,
+            why: format!(
+                "format {:?} version {} (expected {FORMAT:?} version {VERSION})",
+                manifest.format, manifest.version
+            ),
+        });
+    }
+    let plan = Plan::new(manifest.plan.clone())?;
+    if plan_sha256(&plan) != manifest.plan_sha256 {
+        return Err(DirError::BadManifest {
+            path: mpath,
+            why: "plan_sha256 does not match its plan (edited, or another qhm version)".into(),
+        });
+    }
+    Ok((manifest, plan))
 }
 
 #[cfg(test)]
