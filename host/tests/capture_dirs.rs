@@ -5,23 +5,12 @@
 //! a capture (seconds in all); crash-resume is tests/tests/capture_resume.rs.
 
 mod cli_util;
-use cli_util::snapshot;
+use cli_util::{run as qhm, snapshot};
 
 use std::path::Path;
 use std::process::Command;
 
 use qhm_acquire::{CaptureDir, Manifest, Plan, PlanConfig, Scale};
-
-fn qhm(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_qhm"))
-        .args(args)
-        .output()
-        .expect("qhm runs");
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(!text.contains("panicked"), "qhm panicked: {text}");
-    (out.status.success(), text)
-}
 
 fn refused(args: &[&str], want: &[&str]) -> String {
     let (ok, text) = qhm(args);

@@ -4,25 +4,12 @@
 //! directory that holds something else is refused even with `--force`.
 
 mod cli_util;
-use cli_util::snapshot;
+use cli_util::{run as qhm, snapshot};
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use qhm_model::synth::{SynthSpec, write_synthetic};
 use qhm_model::{DipoleParams, MaterialModel};
-
-/// Runs qhm; returns (success, stdout + stderr).
-fn qhm(args: &[impl AsRef<std::ffi::OsStr> + std::fmt::Debug]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_qhm"))
-        .args(args)
-        .output()
-        .expect("qhm runs");
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(!text.contains("panicked"), "qhm panicked: {text}");
-    (out.status.success(), text)
-}
 
 fn ok(args: &[impl AsRef<std::ffi::OsStr> + std::fmt::Debug]) -> String {
     let (ok, text) = qhm(args);

@@ -6,25 +6,13 @@
 //! binning, frames drawn here rather than simulated, so it takes a second).
 
 mod cli_util;
-use cli_util::snapshot;
+use cli_util::{run as qhm, snapshot};
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use qhm_acquire::plan::Light;
 use qhm_acquire::{CaptureDir, Manifest, Plan, PlanConfig, Scale};
-
-/// Runs qhm; returns (success, stdout + stderr).
-fn qhm(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_qhm"))
-        .args(args)
-        .output()
-        .expect("qhm runs");
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(!text.contains("panicked"), "qhm panicked: {text}");
-    (out.status.success(), text)
-}
 
 fn ok(args: &[&str]) -> String {
     let (ok, text) = qhm(args);

@@ -169,3 +169,13 @@ pub fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     }
     out
 }
+
+/// Runs qhm in the current directory; returns (success, stdout + stderr),
+/// and fails the test on a panic.
+pub fn run(args: &[impl AsRef<std::ffi::OsStr> + std::fmt::Debug]) -> (bool, String) {
+    let out = Command::new(QHM).args(args).output().expect("qhm runs");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(!text.contains("panicked"), "qhm panicked: {text}");
+    (out.status.success(), text)
+}
