@@ -8,8 +8,8 @@
 //! only through [`Io`], and only when they change.
 //!
 //! Safety (DESIGN.md principle 4), re-evaluated on every `receive` and `poll`:
-//! the laser emits only while armed, the interlock is closed, a `Heartbeat`
-//! arrived within [`HEARTBEAT_TIMEOUT_US`] and no fault is latched. A stale
+//! the laser emits only while armed, the interlock is closed, the host was
+//! heard within [`HEARTBEAT_TIMEOUT_US`] and no fault is latched. A stale
 //! heartbeat while armed or moving, the arc limit switch opening, or a failed
 //! homing latch a fault: lasers and lamps off, sweeps aborted, motors
 //! decelerate. E-stop (input or command) stops everything at once. A fault
@@ -28,7 +28,11 @@ use protocol::{
     Status, encode_frame,
 };
 
-/// The laser needs a `Heartbeat` at most this old; older while armed or moving is a fault.
+/// The laser needs the host heard at most this long ago; longer while armed
+/// or moving is a fault. Any valid host frame counts (a retransmission too):
+/// each proves the host alive, and on a damaged line a command that is still
+/// being retried cannot let a `Heartbeat` go first. An idle host sends
+/// `Heartbeat`s to be heard.
 pub const HEARTBEAT_TIMEOUT_US: u64 = 250_000;
 /// Unacknowledged events are re-sent this often.
 pub const EVENT_RESEND_US: u64 = 50_000;
@@ -91,7 +95,8 @@ pub struct Controller {
     /// Time each trigger line goes low again (0 = low).
     trigger_off_us: [u64; LINES],
 
-    last_heartbeat_us: Option<u64>,
+    /// When a valid host frame last arrived (the heartbeat's clock).
+    last_heard_us: Option<u64>,
     /// Since when the heartbeat has been required (armed or moving), if it is.
     watch_since: Option<u64>,
     inputs: Inputs,
@@ -127,7 +132,7 @@ impl Controller {
             armed: false,
             lamps: 0,
             trigger_off_us: [0; LINES],
-            last_heartbeat_us: None,
+            last_heard_us: None,
             watch_since: None,
             inputs: Inputs::SAFE,
             fault: None,
@@ -168,6 +173,7 @@ impl Controller {
                 None => {}
                 Some(Err(_)) => self.frames_dropped = self.frames_dropped.wrapping_add(1),
                 Some(Ok(frame)) => {
+                    self.last_heard_us = Some(self.now_us);
                     self.handle_frame(frame);
                     self.service(io);
                     if self.reset_mark.is_some() {
@@ -275,7 +281,7 @@ impl Controller {
     }
 
     fn heartbeat_fresh(&self) -> bool {
-        self.last_heartbeat_us
+        self.last_heard_us
             .is_some_and(|t| self.now_us.saturating_sub(t) <= HEARTBEAT_TIMEOUT_US)
     }
 
@@ -353,7 +359,7 @@ impl Controller {
                 limits: Self::limits(),
             })),
             Command::Heartbeat { event_ack } => {
-                self.last_heartbeat_us = Some(now);
+                // Being heard was noted in `receive`, for every frame.
                 self.events.ack(event_ack);
                 Ok(Reply::Ok)
             }
@@ -604,7 +610,7 @@ impl Controller {
             return;
         }
         let since = *self.watch_since.get_or_insert(self.now_us);
-        let last = self.last_heartbeat_us.map_or(since, |t| t.max(since));
+        let last = self.last_heard_us.map_or(since, |t| t.max(since));
         if self.now_us.saturating_sub(last) > HEARTBEAT_TIMEOUT_US {
             self.raise(FaultCause::HeartbeatLost);
         }
@@ -835,7 +841,7 @@ impl Controller {
         if self.events.pending().next().is_some() {
             t = t.min(self.resend_at.max(now));
         }
-        if let Some(hb) = self.last_heartbeat_us
+        if let Some(hb) = self.last_heard_us
             && self.laser_emitting()
         {
             t = t.min(hb.saturating_add(HEARTBEAT_TIMEOUT_US + 1));

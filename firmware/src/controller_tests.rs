@@ -141,7 +141,7 @@ fn retransmission_is_answered_not_executed() {
 }
 
 #[test]
-fn laser_needs_arm_interlock_and_fresh_heartbeat() {
+fn laser_needs_arm_interlock_and_the_host_heard() {
     let (mut c, mut rig, mut host) = setup();
     let t = 1000;
     host.send(
@@ -157,8 +157,8 @@ fn laser_needs_arm_interlock_and_fresh_heartbeat() {
         .unwrap();
     host.send(&mut c, &mut rig, t, Command::LaserArm { armed: true })
         .unwrap();
-    // armed but no heartbeat yet
-    assert!(!rig.laser_on() && !c.laser_emitting());
+    // the arming frame is itself heard: any valid frame keeps the heartbeat fresh
+    assert!(rig.laser_on() && c.laser_emitting());
     host.send(
         &mut c,
         &mut rig,
@@ -193,8 +193,9 @@ fn laser_needs_arm_interlock_and_fresh_heartbeat() {
     .unwrap();
     assert_eq!(rig.lasers, [false, false, true]);
     assert!(!rig.two_lasers_seen);
-    // heartbeat goes stale: off within the poll after it expires
-    let expiry = t + 10 + 250 * MS;
+    // the host goes quiet after its last frame (the colour switch at t + 40):
+    // off within the poll after the heartbeat expires
+    let expiry = t + 40 + 250 * MS;
     run_until(&mut c, &mut rig, t + 50, expiry);
     assert!(rig.laser_on());
     let deadline = c.poll(expiry, &mut rig);

@@ -1,6 +1,6 @@
 //! Property tests of the Controller's invariants over random command
 //! sequences, random input changes and random time steps (issue 2):
-//! the laser is never on unless armed, interlock closed, heartbeat fresh and no
+//! the laser is never on unless armed, interlock closed, host heard lately and no
 //! fault; never two colours at once; homed positions never pass the soft
 //! limits; no step after an e-stop; every command executed exactly once under
 //! retransmission.
@@ -105,7 +105,8 @@ struct World {
     now: u64,
     seq: u16,
     last_frame: Vec<u8>,
-    /// When the controller last executed a Heartbeat (as the host knows it).
+    /// When the controller last received a valid frame (as the host knows
+    /// it): any frame keeps the heartbeat fresh, a retransmission too.
     last_hb: Option<u64>,
 }
 
@@ -131,14 +132,11 @@ impl World {
         if !matches!(command, Command::Identify) {
             self.seq = self.seq.wrapping_add(1);
         }
-        let is_hb = matches!(command, Command::Heartbeat { .. });
         // A leading delimiter flushes any garbage the link left in the decoder.
         self.last_frame = Host::encode(self.seq, command);
         self.last_frame.insert(0, 0);
         self.c.receive(self.now, &self.last_frame, &mut self.rig);
-        if is_hb {
-            self.last_hb = Some(self.now);
-        }
+        self.last_hb = Some(self.now);
         self.host.drain(&mut self.c);
     }
 
@@ -187,6 +185,7 @@ impl World {
             Op::Cmd(command) => self.deliver(command),
             Op::Retransmit => {
                 self.c.receive(self.now, &self.last_frame, &mut self.rig);
+                self.last_hb = Some(self.now);
                 self.host.drain(&mut self.c);
             }
             Op::Run(dt) => {

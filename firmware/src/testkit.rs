@@ -113,7 +113,8 @@ pub struct Host {
     pub acks: Vec<(u16, Result<Reply, CommandError>)>,
     /// Every event frame received, duplicates included.
     pub events: Vec<(u16, u64, Event)>,
-    pub last_heartbeat_us: Option<u64>,
+    /// When the controller last received a frame from this host.
+    pub last_heard_us: Option<u64>,
 }
 
 impl Default for Host {
@@ -129,7 +130,7 @@ impl Host {
             dec: FrameDecoder::new(),
             acks: Vec::new(),
             events: Vec::new(),
-            last_heartbeat_us: None,
+            last_heard_us: None,
         }
     }
 
@@ -166,9 +167,7 @@ impl Host {
         seq: u16,
         command: Command,
     ) -> Result<Reply, CommandError> {
-        if matches!(command, Command::Heartbeat { .. }) {
-            self.last_heartbeat_us = Some(now);
-        }
+        self.last_heard_us = Some(now);
         c.receive(now, &Self::encode(seq, command), rig);
         self.acks.clear();
         self.drain(c);

@@ -49,6 +49,8 @@ pub struct RawHost {
     /// Send a heartbeat this often while running time (`None` = never).
     pub heartbeat_us: Option<u64>,
     last_heartbeat_us: Option<u64>,
+    /// When the last frame of any kind was written (world clock).
+    last_sent_us: Option<u64>,
     /// Frames that failed to decode (corruption on the line).
     pub bad_frames: u64,
     /// Retransmissions made by `call`.
@@ -83,6 +85,7 @@ impl RawHost {
             acks: Vec::new(),
             heartbeat_us: None,
             last_heartbeat_us: None,
+            last_sent_us: None,
             bad_frames: 0,
             retransmissions: 0,
             auto_ack: true,
@@ -102,6 +105,7 @@ impl RawHost {
         // Every command fits a frame (protocol's largest_messages_fit test).
         let n = encode_frame(&HostFrame { seq, command }, &mut buf[1..]).unwrap_or(0);
         self.port.host_write(&buf[..n + 1]);
+        self.last_sent_us = Some(self.now_us());
     }
 
     /// Send a command with the next sequence number and return it (no wait).
@@ -271,9 +275,10 @@ impl RawHost {
             .collect()
     }
 
-    /// When the last automatic heartbeat was sent (world clock).
-    pub fn last_heartbeat_us(&self) -> Option<u64> {
-        self.last_heartbeat_us
+    /// When the last frame was written (world clock). The MCU counts any
+    /// valid frame as a heartbeat, so it bounds when the MCU last heard us.
+    pub fn last_sent_us(&self) -> Option<u64> {
+        self.last_sent_us
     }
 
     /// Acknowledge every event delivered so far.

@@ -324,7 +324,7 @@ fn heartbeat_loss_darkens_the_laser_and_latches_a_fault() {
         "heartbeats keep it on"
     );
     h.heartbeat_us = None;
-    let last_hb = h.last_heartbeat_us().unwrap();
+    let last_hb = h.last_sent_us().unwrap();
     let e = h
         .run_until_event(1_000_000, |e| matches!(e, Event::Fault { .. }))
         .expect("fault raised");

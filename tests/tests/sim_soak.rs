@@ -95,7 +95,7 @@ fn check(h: &RawHost, openings: u64) -> Result<(), TestCaseError> {
     if snap.state.laser.is_some() {
         prop_assert!(snap.inputs.interlock_closed && !snap.inputs.estop_pressed);
         prop_assert!(status.fault.is_none(), "emitting with {:?}", status.fault);
-        let hb = h.last_heartbeat_us().unwrap_or(0);
+        let hb = h.last_sent_us().unwrap_or(0);
         prop_assert!(
             h.now_us() <= hb + 250_000 + 5_000,
             "emitting {} µs after the last heartbeat",

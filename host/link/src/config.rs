@@ -6,8 +6,10 @@ use std::time::Duration;
 /// [`LinkConfig::scaled`] suits an emulated rig running faster than real time.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinkConfig {
-    /// Interval between heartbeats (the MCU faults after 250 ms without one
-    /// while the laser is armed or a motor moves).
+    /// Interval between heartbeats when the link is idle (the MCU faults
+    /// after 250 ms without hearing a valid frame while the laser is armed
+    /// or a motor moves). Commands answered with a short `Ok` are resent at
+    /// least every quarter of it while unanswered.
     pub heartbeat_interval: Duration,
     /// Retransmission timeout before the first RTT sample.
     pub initial_rto: Duration,
@@ -18,7 +20,8 @@ pub struct LinkConfig {
     pub max_rto: Duration,
     /// Silent tries of one command (timeouts with no damaged frame received,
     /// i.e. the request or the whole answer vanished) before
-    /// `LinkError::Timeout`. Tries whose answer arrived damaged do not count.
+    /// `LinkError::Timeout`. Tries whose answer arrived damaged do not
+    /// count, nor keep-alive resends cut short of the RTO.
     /// The default is high enough that a silent MCU meets `silence_timeout`
     /// first (and the link reports it gone rather than one command lost).
     pub tries: u32,
@@ -42,7 +45,7 @@ pub struct LinkConfig {
 impl Default for LinkConfig {
     fn default() -> Self {
         Self {
-            heartbeat_interval: Duration::from_millis(100),
+            heartbeat_interval: Duration::from_millis(50),
             initial_rto: Duration::from_millis(200),
             min_rto: Duration::from_millis(25),
             max_rto: Duration::from_secs(1),
@@ -120,7 +123,7 @@ mod tests {
     #[test]
     fn scaling_shrinks_times_with_a_floor() {
         let c = LinkConfig::scaled(10.0);
-        assert_eq!(c.heartbeat_interval, Duration::from_millis(10));
+        assert_eq!(c.heartbeat_interval, Duration::from_millis(5));
         assert_eq!(c.min_rto, Duration::from_micros(2500));
         assert_eq!(c.max_rto, Duration::from_millis(250));
         assert_eq!(c.silence_timeout, Duration::from_secs(3));

@@ -5,7 +5,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use protocol::seq::EventReceiver;
 use protocol::{
@@ -276,7 +276,9 @@ impl Engine {
                     s.retransmissions += 1;
                 }
             });
-            let mut retransmit_at = sent_at + self.rtt.rto();
+            let rto = self.rtt.rto();
+            let wait = self.retransmit_wait(command, rto);
+            let mut retransmit_at = sent_at + wait;
             let mut damaged = false;
             loop {
                 let wake = retransmit_at.min(self.silence_deadline()).min(give_up_at);
@@ -332,7 +334,9 @@ impl Engine {
                 ));
                 return Err(self.disconnected());
             }
-            if !damaged {
+            // A keep-alive resend (cut short of the RTO) is not a silent try:
+            // a silent MCU meets `silence_timeout` instead.
+            if !damaged && wait == rto {
                 self.rtt.backoff();
                 silent_tries += 1;
             }
@@ -344,6 +348,24 @@ impl Engine {
                 });
             }
         }
+    }
+
+    /// How long to wait for the answer to `command` before sending it again.
+    ///
+    /// The MCU faults if it hears no valid frame for 250 ms while a motor
+    /// moves or the laser is armed, and counts a retransmission as heard. A
+    /// command answered with a short `Ok` (all but `Status` and `Identify`)
+    /// is therefore resent at least every quarter heartbeat interval (never
+    /// sooner than two round trips): on a damaged line that puts a dozen
+    /// tries into the MCU's window instead of two or three at the RTO. A
+    /// long answer keeps the RTO, which a slow line's largest frame sets.
+    fn retransmit_wait(&self, command: &Command, rto: Duration) -> Duration {
+        if matches!(command, Command::Status | Command::Identify) {
+            return rto;
+        }
+        let keepalive = (self.config.heartbeat_interval / 4)
+            .max(2 * self.rtt.srtt().unwrap_or(self.config.initial_rto));
+        rto.min(keepalive)
     }
 
     /// When the MCU counts as gone: `silence_timeout` after the first frame
