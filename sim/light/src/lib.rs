@@ -28,6 +28,7 @@
 pub mod bench;
 pub mod medium;
 pub mod microfacet;
+pub mod object;
 pub mod rig;
 pub mod rng;
 pub mod sample;
