@@ -1,7 +1,8 @@
 //! What the renderer needs from a material: the four parts of paper eq. 4.
 //! [`qhm_model::MaterialModel`] implements it; tests and quick looks can
 //! use [`Homogeneous`] (a plain dipole material: f = Fresnel transmittance
-//! ratio, f_v = 1, no LRF: the same as `MaterialModel::homogeneous`).
+//! ratio, f_v = 1 with the smooth boundary's exit shape, no LRF: the same as
+//! `MaterialModel::homogeneous`).
 //!
 //! Radiance convention (shared with qhm-model, docs/model-format.md):
 //! L_o = ∫ R(x, w_i, w_o) E_n(w_i) dw_i + f_v(x, w_o) / pi · Σ_i R_d f E_i A_i,
@@ -39,6 +40,19 @@ pub trait Material: Sync {
     fn local_disc_mm(&self) -> f32 {
         0.0
     }
+    /// True when f and f_v are the smooth surface's idealisation rather
+    /// than measured (a homogeneous material: f = T(θ)/T(0), f_v = 1 at a
+    /// single view). The renderer then adds what a smooth boundary does to
+    /// a half-space of the material's albedo: on entry, the rise of the
+    /// diffuse reflectance with the angle of incidence (an oblique beam
+    /// scatters first nearer the surface; `qhm_model::transport::
+    /// oblique_reflectance`), and on exit the emergent radiance's shape
+    /// S(w_o) (the Fresnel fall-off towards grazing, ∫ S cos dw_o / pi = 1).
+    /// A fitted f and f_v are measured from stripe profiles at each light
+    /// and view and hold both already.
+    fn smooth_boundary(&self) -> bool {
+        false
+    }
 }
 
 /// A homogeneous material: plain dipole, smooth Fresnel entrance, no texture.
@@ -70,6 +84,9 @@ impl Material for Homogeneous {
     fn has_lrf(&self) -> bool {
         false
     }
+    fn smooth_boundary(&self) -> bool {
+        true
+    }
 }
 
 impl Material for qhm_model::MaterialModel {
@@ -98,6 +115,11 @@ impl Material for qhm_model::MaterialModel {
     /// it (docs/model-format.md, "LRF").
     fn local_disc_mm(&self) -> f32 {
         self.texel_mm / std::f32::consts::PI.sqrt()
+    }
+    /// `MaterialModel::homogeneous` has f_v = 1 at a single view and the
+    /// Fresnel ratio for f: the boundary's shapes are the renderer's to add.
+    fn smooth_boundary(&self) -> bool {
+        self.exiting.views.len() <= 1
     }
 }
 

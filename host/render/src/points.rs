@@ -21,6 +21,7 @@ use rayon::prelude::*;
 use crate::bvh::Ray;
 use crate::material::Material;
 use crate::mesh::Mesh;
+use crate::render::EntryShape;
 use crate::scene::Scene;
 
 /// Surface sample points with their area and irradiance.
@@ -45,22 +46,33 @@ pub enum Entrance<'a, M: Material> {
     /// normal incidence, times the share T(0) = 1 - F_r(eta, 0) of a normal
     /// beam that enters: R_d counts entered light (Jensen et al. 2001's
     /// F_t(w_i) R_d; qhm-model fits a' from R / T(0)).
-    Model(&'a M),
-    /// Plain dipole: the smooth-surface Fresnel transmittance 1 - F_r(eta, w_i).
-    Fresnel(f64),
+    /// With the smooth boundary's entry shape when the material has one
+    /// (`Material::smooth_boundary`).
+    Model(&'a M, Option<&'a EntryShape>),
+    /// Plain dipole: the smooth-surface Fresnel transmittance 1 - F_r(eta, w_i),
+    /// times the entry shape.
+    Fresnel(f64, Option<&'a EntryShape>),
 }
 
 impl<M: Material> Entrance<'_, M> {
     fn eval(&self, wi_local: Vec3) -> Vec3 {
         use qhm_model::dipole::{fresnel_dielectric, normal_transmittance};
-        match self {
-            Entrance::Model(m) => {
-                Vec3::from(m.entrance(wi_local.to_array()))
-                    * normal_transmittance(m.dipole().eta) as f32
+        let (base, eta, shape) = match self {
+            Entrance::Model(m, shape) => {
+                let eta = m.dipole().eta;
+                let f =
+                    Vec3::from(m.entrance(wi_local.to_array())) * normal_transmittance(eta) as f32;
+                (f, eta, shape)
             }
-            Entrance::Fresnel(eta) => {
-                Vec3::splat((1.0 - fresnel_dielectric(wi_local.z as f64, *eta)) as f32)
-            }
+            Entrance::Fresnel(eta, shape) => (
+                Vec3::splat((1.0 - fresnel_dielectric(wi_local.z as f64, *eta)) as f32),
+                *eta,
+                shape,
+            ),
+        };
+        match shape {
+            Some(g) => base * g.eval(wi_local.z, eta as f32),
+            None => base,
         }
     }
 }

@@ -113,6 +113,11 @@ pub struct RenderSettings {
     pub light_samples: usize,
     /// Radius of the local disk A_o left out of the dipole sum, mm (0 = none).
     pub local_radius_mm: f32,
+    /// Irradiance interpolation: radius of the near field whose samples'
+    /// irradiance is averaged instead of summed, in units of one sample's
+    /// equal-area radius sqrt(A / pi) (0 = plain sum; see
+    /// [`RdTable::with_near_field`]).
+    pub near_field: f32,
     pub seed: u64,
     /// Quilt the material texture (else tile it periodically).
     pub synthesis: bool,
@@ -133,6 +138,7 @@ impl Default for RenderSettings {
             env_samples: 64,
             light_samples: 8,
             local_radius_mm: 0.0,
+            near_field: NEAR_FIELD_SPREAD,
             seed: 1,
             synthesis: true,
             synth: SynthSettings::default(),
@@ -167,6 +173,9 @@ impl RenderSettings {
                 "local_radius_mm {} must be >= 0",
                 self.local_radius_mm
             ));
+        }
+        if !(self.near_field.is_finite() && (0.0..=100.0).contains(&self.near_field)) {
+            return bad(format!("near_field {} must be in 0..=100", self.near_field));
         }
         if self.env_samples > 65536 || self.light_samples > 65536 {
             return bad("env_samples/light_samples must be <= 65536".into());
@@ -258,9 +267,116 @@ pub struct Prepared {
     pub texture: SynthTexture,
     /// The radius left out of `rd` (depends on the mode, not the lights).
     hole: f32,
+    /// `rd`'s near field, `RenderSettings::near_field`.
+    near_field: f32,
     eta: f64,
     /// F̄, the hemispherical mean of F_r: normalises the plain dipole's exit.
     fresnel_average: f64,
+    /// The smooth boundary's exit shape for a material whose f_v has none
+    /// ([`Material::smooth_boundary`]).
+    exit_shape: Option<ExitShape>,
+    /// The smooth boundary's entry shape (also [`Material::smooth_boundary`]).
+    pub entry_shape: Option<EntryShape>,
+}
+
+/// g(cos θ_i) per channel: the half-space's diffuse reflectance for a beam
+/// incident at θ_i over that at normal incidence, both per entered flux
+/// (`qhm_model::transport::oblique_reflectance` at the refracted cosine).
+/// The irradiance that enters is multiplied by it. 1 at the normal,
+/// rising towards grazing incidence, more for a lower albedo.
+#[derive(Clone, Debug)]
+pub struct EntryShape {
+    values: Vec<Vec3>,
+}
+
+impl EntryShape {
+    const N: usize = 17;
+
+    pub fn new(d: &qhm_model::DipoleParams) -> EntryShape {
+        // Tabulated in the refracted cosine mu0, from the critical angle's
+        // (grazing incidence) to 1, where g is smooth.
+        let mu_c = (1.0 - 1.0 / (d.eta * d.eta)).max(0.0).sqrt();
+        let mu0: Vec<f64> = (0..Self::N)
+            .map(|k| mu_c + (1.0 - mu_c) * k as f64 / (Self::N - 1) as f64)
+            .chain(std::iter::once(1.0))
+            .collect();
+        let r: Vec<Vec<f64>> = (0..3)
+            .map(|c| qhm_model::transport::oblique_reflectance(d.eta, d.alpha_prime[c], &mu0))
+            .collect();
+        let g = |c: usize, k: usize| {
+            let v = r[c][k] / r[c][Self::N];
+            if v.is_finite() { v as f32 } else { 1.0 }
+        };
+        EntryShape {
+            values: (0..Self::N)
+                .map(|k| Vec3::new(g(0, k), g(1, k), g(2, k)))
+                .collect(),
+        }
+        .with_mu_c(mu_c as f32)
+    }
+
+    fn with_mu_c(mut self, mu_c: f32) -> EntryShape {
+        self.values.push(Vec3::splat(mu_c));
+        self
+    }
+
+    /// g at the cosine of incidence `cos_i` outside (refracted with eta).
+    #[inline]
+    pub fn eval(&self, cos_i: f32, eta: f32) -> Vec3 {
+        let n = self.values.len() - 1;
+        let mu_c = self.values[n].x;
+        let s2 = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
+        let mu0 = (1.0 - s2).max(0.0).sqrt();
+        let x = ((mu0 - mu_c) / (1.0 - mu_c)).clamp(0.0, 1.0) * (n - 1) as f32;
+        let i = (x as usize).min(n - 2);
+        let t = x - i as f32;
+        self.values[i] * (1.0 - t) + self.values[i + 1] * t
+    }
+}
+
+/// S(cos θ_o) per channel: pi times the radiance the model's light
+/// transport sends out at θ_o per unit exitance (`ProfileModel::
+/// exitance_per_radiance`: for radiative transfer the emergent radiance of
+/// the half-space, for the dipole the normalised Fresnel shape). ∫ S cos dw
+/// / pi = 1, so the exitance Σ R_d E A is kept; S = 1 is Lambertian. It
+/// falls to 0 at grazing (Fresnel) and is above 1 near the normal.
+#[derive(Clone, Debug)]
+pub struct ExitShape {
+    values: Vec<Vec3>,
+}
+
+impl ExitShape {
+    const N: usize = 129;
+
+    pub fn new(d: &qhm_model::DipoleParams) -> ExitShape {
+        let cos: Vec<f64> = (0..Self::N)
+            .map(|k| k as f64 / (Self::N - 1) as f64)
+            .collect();
+        let per: Vec<Vec<f64>> = (0..3)
+            .map(|c| d.model.exitance_per_radiance(d.alpha_prime[c], d.eta, &cos))
+            .collect();
+        let s = |v: f64| {
+            let x = std::f64::consts::PI / v;
+            if x.is_finite() {
+                x.max(0.0) as f32
+            } else {
+                0.0
+            }
+        };
+        ExitShape {
+            values: (0..Self::N)
+                .map(|k| Vec3::new(s(per[0][k]), s(per[1][k]), s(per[2][k])))
+                .collect(),
+        }
+    }
+
+    #[inline]
+    pub fn eval(&self, cos: f32) -> Vec3 {
+        let x = cos.clamp(0.0, 1.0) * (Self::N - 1) as f32;
+        let i = (x as usize).min(Self::N - 2);
+        let t = x - i as f32;
+        self.values[i] * (1.0 - t) + self.values[i + 1] * t
+    }
 }
 
 /// Builds the surface samples, their irradiance, the octree and the
@@ -285,10 +401,22 @@ pub fn prepare<M: Material>(
         SurfaceSamples::default()
     };
     stats.secs_samples = t.elapsed().as_secs_f64();
-    let tree = light_pass(scene, material, settings, &mut samples, stats);
+    let t = Instant::now();
+    let entry_shape = (settings.mode.has_global()
+        && (material.smooth_boundary() || settings.mode.plain_dipole()))
+    .then(|| EntryShape::new(&dipole));
+    stats.secs_tree += t.elapsed().as_secs_f64();
+    let tree = light_pass(
+        scene,
+        material,
+        settings,
+        &mut samples,
+        entry_shape.as_ref(),
+        stats,
+    );
     let t = Instant::now();
     let hole = rd_hole(material, settings);
-    let rd = rd_table(material, &samples, hole);
+    let rd = rd_table(material, &samples, hole, settings.near_field);
     stats.secs_tree += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let (tw, th) = material.texture_size();
@@ -309,8 +437,11 @@ pub fn prepare<M: Material>(
         rd,
         texture,
         hole,
+        near_field: settings.near_field,
         eta: dipole.eta,
         fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
+        exit_shape: material.smooth_boundary().then(|| ExitShape::new(&dipole)),
+        entry_shape,
     })
 }
 
@@ -321,14 +452,15 @@ fn light_pass<M: Material>(
     material: &M,
     settings: &RenderSettings,
     samples: &mut SurfaceSamples,
+    entry_shape: Option<&EntryShape>,
     stats: &mut RenderStats,
 ) -> DipoleTree {
     let dipole = material.dipole();
     let t = Instant::now();
     let entrance = if settings.mode.plain_dipole() {
-        Entrance::Fresnel(dipole.eta)
+        Entrance::Fresnel(dipole.eta, entry_shape)
     } else {
-        Entrance::Model(material)
+        Entrance::Model(material, entry_shape)
     };
     points::compute_irradiance(
         scene,
@@ -356,12 +488,18 @@ fn rd_hole<M: Material>(material: &M, settings: &RenderSettings) -> f32 {
 }
 
 /// The R_d table for the samples' spacing: it does not depend on the lights.
-fn rd_table<M: Material>(material: &M, samples: &SurfaceSamples, hole: f32) -> RdTable {
+fn rd_table<M: Material>(
+    material: &M,
+    samples: &SurfaceSamples,
+    hole: f32,
+    near_field: f32,
+) -> RdTable {
     // Every sample stands for an equal share A of the area; the kernel is
     // averaged over a disk of twice that radius, which hides the sample
     // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
-    let rho = KERNEL_SPREAD * samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
-    RdTable::with_hole(&material.dipole(), rho, hole)
+    let radius = samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
+    RdTable::with_hole(&material.dipole(), KERNEL_SPREAD * radius, hole)
+        .with_near_field(near_field * radius)
 }
 
 impl Prepared {
@@ -383,11 +521,22 @@ impl Prepared {
                 "relight: the mode turns the dipole term on or off; prepare again".into(),
             ));
         }
-        self.tree = light_pass(scene, material, settings, &mut self.samples, stats);
+        if self.entry_shape.is_none()
+            && (material.smooth_boundary() || settings.mode.plain_dipole())
+        {
+            self.entry_shape = Some(EntryShape::new(&material.dipole()));
+        }
+        let entry = if material.smooth_boundary() || settings.mode.plain_dipole() {
+            self.entry_shape.as_ref()
+        } else {
+            None
+        };
+        self.tree = light_pass(scene, material, settings, &mut self.samples, entry, stats);
         let hole = rd_hole(material, settings);
-        if hole != self.hole {
-            self.rd = rd_table(material, &self.samples, hole);
+        if hole != self.hole || settings.near_field != self.near_field {
+            self.rd = rd_table(material, &self.samples, hole, settings.near_field);
             self.hole = hole;
+            self.near_field = settings.near_field;
         }
         Ok(())
     }
@@ -477,6 +626,9 @@ const TILE: u32 = 16;
 /// Radius of the dipole kernel's averaging disk, in units of the radius
 /// of one sample's area share.
 pub const KERNEL_SPREAD: f32 = 2.0;
+
+/// Default [`RenderSettings::near_field`].
+pub const NEAR_FIELD_SPREAD: f32 = 6.0;
 
 fn render_pixels<M: Material, F>(
     scene: &Scene,
@@ -654,7 +806,11 @@ fn radiance<M: Material>(
             );
             Vec3::splat((1.0 / per_radiance) as f32)
         } else {
-            Vec3::from(material.exiting(uv, wo_l.to_array())) / PI
+            let fv = Vec3::from(material.exiting(uv, wo_l.to_array()));
+            match &prep.exit_shape {
+                Some(shape) => fv * shape.eval(wo_l.z) / PI,
+                None => fv / PI,
+            }
         };
         l += exit * m;
     }

@@ -41,6 +41,7 @@
 //! env_samples = 64
 //! light_samples = 16
 //! local_radius_mm = 0.0
+//! near_field = 6.0              # irradiance interpolation radius, in sample radii (0 = off)
 //! seed = 1
 //! ```
 
@@ -187,6 +188,7 @@ pub struct RenderToml {
     pub env_samples: Option<usize>,
     pub light_samples: Option<usize>,
     pub local_radius_mm: Option<f32>,
+    pub near_field: Option<f32>,
     pub seed: Option<u64>,
     pub synthesis: Option<bool>,
 }
@@ -385,6 +387,7 @@ impl SceneFile {
         s.env_samples = r.env_samples.unwrap_or(s.env_samples);
         s.light_samples = r.light_samples.unwrap_or(s.light_samples);
         s.local_radius_mm = r.local_radius_mm.unwrap_or(s.local_radius_mm);
+        s.near_field = r.near_field.unwrap_or(s.near_field);
         s.seed = r.seed.unwrap_or(s.seed);
         s.synthesis = r.synthesis.unwrap_or(s.synthesis);
         s.validate()

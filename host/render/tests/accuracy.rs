@@ -21,7 +21,13 @@ fn octree_matches_brute_force_within_one_percent() {
         dipole: preset("marble").unwrap(),
     };
     let mut samples = poisson_disk(&scene.mesh, 20_000, 5);
-    compute_irradiance(&scene, &mut samples, Entrance::Model(&material), 16, 5);
+    compute_irradiance(
+        &scene,
+        &mut samples,
+        Entrance::Model(&material, None),
+        16,
+        5,
+    );
     let tree = DipoleTree::new(&samples);
     let rd = RdTable::new(
         &material.dipole(),
