@@ -10,8 +10,14 @@
 //! Order (fewest motions): the operator's clamp moves are outermost, then the
 //! light arc (the slower axis), then the turntable in serpentine order (so it
 //! never swings back across the whole circle), then the electronic switches
-//! (laser colour, lamp), then the exposures. Pass 1 ends with the vertical
-//! clamp position that pass 2 needs, so the clamp moves once per position.
+//! (laser colour, lamp), then the exposures. Pass 1 climbs the oblique clamp
+//! positions and the clamp then rises to the vertical for pass 2, so it moves
+//! once per position.
+//!
+//! Pass 1 takes no vertical stripes when pass 2 holds every view it has: the
+//! vertical reference f(w_i) is measured against is pass 2's then (the same
+//! lasers, scan positions and views), and pass-1 frames at the vertical
+//! clamp would repeat it.
 
 use std::f64::consts::PI;
 
@@ -222,7 +228,7 @@ impl PlanConfig {
             || !self
                 .clamp_elevations
                 .iter()
-                .any(|e| (e - PI / 2.0).abs() < 1e-6)
+                .any(|&e| is_vertical(e))
         {
             return bad("clamp_elevations", "must include the vertical (90 deg)");
         }
@@ -293,6 +299,20 @@ impl PlanConfig {
             }
         }
         Ok(())
+    }
+
+    /// Whether pass 1 must image the vertical clamp position itself: when it
+    /// has no oblique position (the vertical is all it measures), or when a
+    /// view of pass 1 (entrance camera and turntable angle) is not among
+    /// pass 2's, whose vertical stripes are otherwise its reference.
+    pub fn entrance_needs_vertical(&self) -> bool {
+        let oblique = self.clamp_elevations.iter().any(|&e| !is_vertical(e));
+        let exiting = circle(self.exiting_turntable, false);
+        let views_in_pass_2 = self.entrance_cameras.iter().all(|c| self.cameras.contains(c))
+            && circle(self.entrance_turntable, false)
+                .iter()
+                .all(|t| exiting.iter().any(|e| (e - t).abs() < 1e-9));
+        !(oblique && views_in_pass_2)
     }
 
     /// Frame size the cameras deliver at this binning.
@@ -369,6 +389,11 @@ pub struct Plan {
     pub steps: Vec<Step>,
 }
 
+/// The clamp elevation of pass 2 (within the plan's tolerance).
+fn is_vertical(elevation: f64) -> bool {
+    (elevation - PI / 2.0).abs() < 1e-6
+}
+
 /// `n` angles evenly over the circle: for the arc symmetric about 0 and half
 /// a step inside +-pi (its soft limits are +-(pi + 0.1), and its end switch
 /// is just beyond: never run up to them), for the turntable from 0.
@@ -431,10 +456,14 @@ impl Plan {
                 });
             }
         };
-        // Pass 1: ascending elevations so the last is the vertical pass 2 needs.
+        // Pass 1: ascending elevations, without the vertical where pass 2
+        // holds its reference (module docs).
         let mut clamps = c.clamp_elevations.clone();
         clamps.sort_by(f64::total_cmp);
         clamps.dedup();
+        if !c.entrance_needs_vertical() {
+            clamps.retain(|&e| !is_vertical(e));
+        }
         let mut row = 0;
         for (ci, &clamp) in clamps.iter().enumerate() {
             let galvo = galvo_angles(c.scan_positions, c.scan_half_width_mm, clamp);
@@ -696,7 +725,12 @@ mod tests {
         for scale in Scale::ALL {
             let plan = Plan::new(PlanConfig::for_scale(scale)).unwrap();
             let c = &plan.config;
-            let p1 = c.clamp_elevations.len()
+            let p1_clamps = c
+                .clamp_elevations
+                .iter()
+                .filter(|&&e| c.entrance_needs_vertical() || !is_vertical(e))
+                .count();
+            let p1 = p1_clamps
                 * c.entrance_arc_rotations as usize
                 * c.entrance_turntable as usize
                 * c.laser_colours.len()
@@ -738,7 +772,7 @@ mod tests {
     fn order_minimises_motion() {
         let plan = Plan::new(PlanConfig::for_scale(Scale::Default)).unwrap();
         let steps = &plan.steps;
-        // The clamp changes once per elevation, and pass 2 starts without a change.
+        // The clamp changes once per elevation, the last time into pass 2.
         let mut clamp_changes = 0;
         let mut arc_moves = 0;
         for w in steps.windows(2) {
@@ -765,23 +799,58 @@ mod tests {
         let c = &plan.config;
         // The slow axis moves at most once per arc row; serpentine order lets
         // consecutive rows (clamp positions, passes) share their end angle.
-        let rows = c.clamp_elevations.len() * c.entrance_arc_rotations as usize
+        let rows = (c.clamp_elevations.len() - 1) * c.entrance_arc_rotations as usize
             + c.exiting_turntable as usize
             + c.reflectance_arc_rotations as usize;
         assert!(
             arc_moves < rows - 1,
             "{arc_moves} arc moves for {rows} rows"
         );
-        // Default scale: 12 pass-1 rows sharing 2 ends, 1 move into pass 2,
-        // 3 in pass 2, pass 3 starting where pass 2 ended, 3 in pass 3.
-        assert_eq!(arc_moves, 9 + 1 + 3 + 3);
+        // Default scale: 8 pass-1 rows (two oblique clamp positions) sharing
+        // 1 end, pass 2 starting where pass 1 ended, 3 in pass 2, pass 3
+        // starting where pass 2 ended, 3 in pass 3.
+        assert_eq!(arc_moves, 6 + 3 + 3);
         let p2 = steps.iter().find(|s| s.pass == Pass::Exiting).unwrap();
         let last_p1 = steps
             .iter()
             .rev()
             .find(|s| s.pass == Pass::Entrance)
             .unwrap();
-        assert_eq!(p2.clamp_elevation, last_p1.clamp_elevation);
+        assert_eq!(p2.light_arc, last_p1.light_arc);
+        assert!(last_p1.clamp_elevation < p2.clamp_elevation);
+    }
+
+    #[test]
+    fn pass_1_takes_the_vertical_only_where_pass_2_lacks_its_views() {
+        let vertical = |p: &Plan| {
+            p.steps
+                .iter()
+                .filter(|s| s.pass == Pass::Entrance)
+                .filter(|s| s.clamp_elevation.is_some_and(is_vertical))
+                .count()
+        };
+        // Every named scale: pass 2 holds pass 1's views.
+        for scale in Scale::ALL {
+            let c = PlanConfig::for_scale(scale);
+            assert!(!c.entrance_needs_vertical(), "{scale:?}");
+            let plan = Plan::new(c).unwrap();
+            assert_eq!(vertical(&plan), 0, "{scale:?}");
+            assert!(plan.steps.iter().any(|s| s.pass == Pass::Entrance));
+        }
+        // An entrance camera pass 2 does not use, a turntable angle it does
+        // not visit, or no oblique position: pass 1 images the vertical.
+        let mut c = PlanConfig::for_scale(Scale::Ci);
+        c.cameras = vec![3, 5];
+        let per_position = (c.entrance_arc_rotations * c.entrance_turntable) as usize
+            * c.laser_colours.len()
+            * c.laser_exposures.len();
+        assert_eq!(vertical(&Plan::new(c).unwrap()), per_position);
+        let mut c = PlanConfig::for_scale(Scale::Default);
+        c.exiting_turntable = 3;
+        assert!(vertical(&Plan::new(c).unwrap()) > 0);
+        let mut c = PlanConfig::for_scale(Scale::Ci);
+        c.clamp_elevations = vec![PI / 2.0];
+        assert_eq!(vertical(&Plan::new(c).unwrap()), per_position);
     }
 
     #[test]
