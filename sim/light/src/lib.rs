@@ -26,6 +26,7 @@
 //! ```
 
 pub mod bench;
+pub mod cells;
 pub mod medium;
 pub mod microfacet;
 pub mod object;

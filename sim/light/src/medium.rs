@@ -3,9 +3,11 @@
 //! materials, placed uniformly at random from a seed.
 //!
 //! The slab spans |x| <= half[0], |y| <= half[1], -half[2] <= z <= 0 (half[2]
-//! is the full depth). Void ("air") cells are index-matched: light crosses
-//! them without refraction; only the top surface refracts.
+//! is the full depth). Void ("air") inclusions on the voxel grid are
+//! index-matched: light crosses them without refraction. Air cells with an
+//! interface index (`crate::cells`) refract and reflect at their walls.
 
+use crate::cells::Cells;
 use crate::rng::Rng;
 use crate::sample::{Coefficients, SampleDesc, resolve};
 
@@ -37,6 +39,8 @@ pub struct Volume {
     pub open_voids: Vec<Sphere>,
     /// Measured volume fraction of each material in the grid.
     pub fractions: Vec<f64>,
+    /// Air cells with refracting walls (material 0 is the wall); no grid then.
+    pub cells: Option<Cells>,
 }
 
 impl Volume {
@@ -68,6 +72,27 @@ impl Volume {
                 majorant,
                 open_voids: vec![],
                 fractions: vec![1.0],
+                cells: None,
+            };
+        }
+        if let Some(inc) = active.iter().find(|i| i.is_cells()) {
+            let cells = Cells::build(
+                inc.volume_fraction,
+                inc.radius_mm,
+                inc.period_mm,
+                inc.interface_eta.unwrap_or(1.0) as f32,
+                inc.wall_roughness as f32,
+                desc.seed,
+            );
+            let p = cells.porosity;
+            return Volume {
+                half,
+                majorant: [0, 1, 2].map(|c| materials[0].sigma_t()[c] as f32),
+                materials,
+                grid: None,
+                open_voids: vec![],
+                fractions: vec![1.0 - p, p],
+                cells: Some(cells),
             };
         }
         // Resolve the smallest inclusions with ~3 voxels per radius.
@@ -147,6 +172,7 @@ impl Volume {
             majorant,
             open_voids,
             fractions,
+            cells: None,
         }
     }
 
@@ -187,7 +213,13 @@ mod tests {
 
     #[test]
     fn volume_fractions_hit_their_targets() {
+        // index-matched air spheres on the voxel grid
         let mut d = sample("bread");
+        d.volume.inclusions = vec![crate::sample::InclusionDesc::matched(
+            crate::sample::MaterialDesc::Preset("air".into()),
+            0.3,
+            [0.2, 1.0],
+        )];
         d.size_mm = [20.0, 20.0, 8.0];
         let v = Volume::build(&d);
         assert!((v.fractions[1] - 0.3).abs() < 0.01, "{:?}", v.fractions);

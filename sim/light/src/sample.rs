@@ -161,23 +161,32 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
         },
         1.3,
     ),
-    // foam walls: dense, so 55 % open cells leave s'_t near the paper's sponge (~1.6)
+    // Walls of the cellular presets (reduced coefficients of the solid
+    // phase alone), chosen by measuring the effective a' and s'_t of the
+    // whole foam against the paper's Table 2 (docs/sim.md).
     (
         "sponge-foam",
         Coefficients {
-            sigma_s: [3.6, 3.5, 2.4],
-            sigma_a: [0.004, 0.008, 0.75],
+            sigma_s: [13.4, 12.9, 7.5],
+            sigma_a: [0.025, 0.046, 3.4],
         },
-        1.3,
+        1.5,
     ),
-    // crumb: 30 % cavities leave s'_t near the paper's bread (~0.92)
     (
         "bread-crumb",
         Coefficients {
-            sigma_s: [1.28, 1.25, 1.15],
-            sigma_a: [0.026, 0.058, 0.105],
+            sigma_s: [2.4, 2.38, 2.07],
+            sigma_a: [0.072, 0.16, 0.29],
         },
-        1.3,
+        1.45,
+    ),
+    (
+        "rice-cake-wall",
+        Coefficients {
+            sigma_s: [3.7, 3.47, 2.45],
+            sigma_a: [0.008, 0.13, 0.85],
+        },
+        1.5,
     ),
     (
         "air",
@@ -253,12 +262,63 @@ impl Default for SurfaceDesc {
 }
 
 /// Inclusions (or cells) of one material, spheres placed uniformly at random.
+///
+/// Without `interface_eta` the spheres are index-matched inclusions on a
+/// voxel grid: light crosses their surface without refraction. With it they
+/// are air cells (the material must be "air"): overlapping spheres, tiled
+/// periodically in 3D with period `period_mm`, whose walls refract and
+/// reflect (Fresnel, GGX `wall_roughness`) at every crossing, the volume's
+/// material having index `interface_eta` relative to the air in the cells;
+/// `volume_fraction` is then the porosity.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct InclusionDesc {
     pub material: MaterialDesc,
     pub volume_fraction: f64,
     pub radius_mm: [f64; 2],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub interface_eta: Option<f64>,
+    #[serde(default = "default_wall_roughness")]
+    pub wall_roughness: f64,
+    #[serde(default = "default_period")]
+    pub period_mm: f64,
+}
+
+fn default_wall_roughness() -> f64 {
+    0.3
+}
+fn default_period() -> f64 {
+    16.0
+}
+
+impl InclusionDesc {
+    /// Index-matched spheres of `material`.
+    pub fn matched(material: MaterialDesc, volume_fraction: f64, radius_mm: [f64; 2]) -> Self {
+        InclusionDesc {
+            material,
+            volume_fraction,
+            radius_mm,
+            interface_eta: None,
+            wall_roughness: default_wall_roughness(),
+            period_mm: default_period(),
+        }
+    }
+    /// Air cells with refracting walls of index `eta` (porosity `volume_fraction`).
+    pub fn cells(volume_fraction: f64, radius_mm: [f64; 2], eta: f64, wall_roughness: f64) -> Self {
+        InclusionDesc {
+            interface_eta: Some(eta),
+            wall_roughness,
+            ..InclusionDesc::matched(
+                MaterialDesc::Preset("air".into()),
+                volume_fraction,
+                radius_mm,
+            )
+        }
+    }
+    /// Whether these are refracting air cells.
+    pub fn is_cells(&self) -> bool {
+        self.interface_eta.is_some()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -384,6 +444,13 @@ pub enum SceneDesc {
     Sample(SampleDesc),
 }
 
+/// Cells of the bread preset: (porosity, cell radius range mm, wall index).
+pub const BREAD_CELLS: (f64, [f64; 2], f64) = (0.75, [0.1, 1.0], 1.45);
+/// Cells of the sponge preset.
+pub const SPONGE_CELLS: (f64, [f64; 2], f64) = (0.9, [0.15, 0.6], 1.5);
+/// Cells of the rice-cake preset.
+pub const RICE_CAKE_CELLS: (f64, [f64; 2], f64) = (0.85, [0.05, 0.5], 1.5);
+
 /// Names `SceneDesc::preset` accepts.
 pub const SCENE_PRESETS: &[&str] = &[
     "apple",
@@ -398,6 +465,7 @@ pub const SCENE_PRESETS: &[&str] = &[
     "two-material",
     "sponge",
     "bread",
+    "rice-cake",
     "checkerboard",
     "colour-pattern",
     "white",
@@ -450,24 +518,22 @@ impl SceneDesc {
             "two-material" => SceneDesc::Sample(composite(
                 name,
                 "two-material-b",
-                InclusionDesc {
-                    material: p("two-material-a"),
-                    volume_fraction: 0.4,
-                    radius_mm: [0.5, 1.5],
-                },
+                InclusionDesc::matched(p("two-material-a"), 0.4, [0.5, 1.5]),
                 SurfaceDesc::default(),
             )),
+            // Cellular presets: air cells (overlapping spheres) with refracting
+            // walls; porosity and cell sizes from the food-science and foam
+            // literature (docs/sim.md), the wall material chosen so that the
+            // effective a' and s'_t of a large slab (Monte Carlo stripe profile
+            // fitted by `qhm fit-profile`) land near the paper's Table 2.
             "sponge" => SceneDesc::Sample(composite(
                 name,
                 "sponge-foam",
-                InclusionDesc {
-                    material: p("air"),
-                    volume_fraction: 0.55,
-                    radius_mm: [0.4, 1.2],
-                },
+                InclusionDesc::cells(SPONGE_CELLS.0, SPONGE_CELLS.1, SPONGE_CELLS.2, 0.3),
                 SurfaceDesc {
+                    eta: SPONGE_CELLS.2,
                     roughness: 0.35,
-                    relief: Relief::Pores,
+                    relief: Relief::Bumps,
                     bump_amplitude_mm: 0.1,
                     ..SurfaceDesc::default()
                 },
@@ -475,16 +541,25 @@ impl SceneDesc {
             "bread" => SceneDesc::Sample(composite(
                 name,
                 "bread-crumb",
-                InclusionDesc {
-                    material: p("air"),
-                    volume_fraction: 0.3,
-                    radius_mm: [0.2, 1.0],
-                },
+                InclusionDesc::cells(BREAD_CELLS.0, BREAD_CELLS.1, BREAD_CELLS.2, 0.3),
                 SurfaceDesc {
+                    eta: BREAD_CELLS.2,
                     roughness: 0.3,
-                    relief: Relief::Pores,
+                    relief: Relief::Bumps,
                     bump_amplitude_mm: 0.15,
                     ..SurfaceDesc::default()
+                },
+            )),
+            "rice-cake" => SceneDesc::Sample(composite(
+                name,
+                "rice-cake-wall",
+                InclusionDesc::cells(RICE_CAKE_CELLS.0, RICE_CAKE_CELLS.1, RICE_CAKE_CELLS.2, 0.3),
+                SurfaceDesc {
+                    eta: RICE_CAKE_CELLS.2,
+                    roughness: 0.3,
+                    relief: Relief::Bumps,
+                    bump_amplitude_mm: 0.2,
+                    bump_scale_mm: 3.0,
                 },
             )),
             "checkerboard" => SceneDesc::Target {
@@ -601,9 +676,9 @@ impl SceneDesc {
                     let f = |name: &str| format!("volume.inclusions[{i}].{name}");
                     check_material(&inc.material, &f("material"))?;
                     if !(inc.volume_fraction.is_finite()
-                        && (0.0..=0.9).contains(&inc.volume_fraction))
+                        && (0.0..=0.95).contains(&inc.volume_fraction))
                     {
-                        return bad(&f("volume_fraction"), "must be in [0, 0.9]");
+                        return bad(&f("volume_fraction"), "must be in [0, 0.95]");
                     }
                     let [r0, r1] = inc.radius_mm;
                     if !(pos(r0) && pos(r1) && r0 <= r1 && r0 >= 0.05 && r1 <= 20.0) {
@@ -613,12 +688,54 @@ impl SceneDesc {
                         );
                     }
                     total += inc.volume_fraction;
+                    if let Some(eta) = inc.interface_eta {
+                        if !(eta.is_finite() && (1.0..=3.0).contains(&eta)) {
+                            return bad(&f("interface_eta"), "must be in [1, 3]");
+                        }
+                        if resolve(&inc.material).sigma_t().iter().any(|&t| t != 0.0) {
+                            return bad(
+                                &f("material"),
+                                "cells with an interface_eta must be \"air\" (empty)",
+                            );
+                        }
+                        if s.volume.inclusions.len() != 1 {
+                            return bad(
+                                "volume.inclusions",
+                                "cells with an interface_eta must be the only inclusion kind",
+                            );
+                        }
+                        if !(inc.wall_roughness.is_finite()
+                            && (0.01..=1.0).contains(&inc.wall_roughness))
+                        {
+                            return bad(&f("wall_roughness"), "must be in [0.01, 1]");
+                        }
+                        if !(inc.period_mm.is_finite()
+                            && inc.period_mm >= 6.0 * r1
+                            && inc.period_mm <= 64.0)
+                        {
+                            return bad(
+                                &f("period_mm"),
+                                "must be at least 6 x the largest radius and at most 64 mm",
+                            );
+                        }
+                        if sf.roughness < 0.01 {
+                            return bad(
+                                "surface.roughness",
+                                "a cellular sample's top must be rough (roughness >= 0.01)",
+                            );
+                        }
+                    } else if inc.volume_fraction > 0.9 {
+                        return bad(&f("volume_fraction"), "must be in [0, 0.9]");
+                    }
                 }
                 if s.volume.inclusions.len() > 6 {
                     return bad("volume.inclusions", "at most 6 kinds of inclusions");
                 }
-                if total > 0.9 {
-                    return bad("volume.inclusions", "volume fractions sum to more than 0.9");
+                if total > 0.95 {
+                    return bad(
+                        "volume.inclusions",
+                        "volume fractions sum to more than 0.95",
+                    );
                 }
                 Ok(())
             }
