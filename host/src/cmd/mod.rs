@@ -9,5 +9,6 @@ pub mod render;
 pub mod report;
 pub mod rig;
 pub mod sim;
+pub mod sim_object;
 pub mod simpty;
 pub mod view;

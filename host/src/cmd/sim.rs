@@ -32,6 +32,8 @@ pub enum SimAction {
     Render(RenderArgs),
     /// Measure photon paths and scattering events per second (1 and 2 threads).
     Bench(BenchArgs),
+    /// Ground truth for any object: a mesh filled with a sample's volume, path-traced (EXR).
+    RenderObject(crate::cmd::sim_object::RenderObjectArgs),
     /// List the built-in samples and calibration targets.
     Presets,
 }
@@ -117,6 +119,7 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
     match args.action {
         Some(SimAction::Render(r)) => render(r),
         Some(SimAction::Bench(b)) => bench(b),
+        Some(SimAction::RenderObject(r)) => crate::cmd::sim_object::run(r),
         Some(SimAction::Presets) => {
             let mut out = std::io::stdout().lock();
             for p in sim_light::SCENE_PRESETS {

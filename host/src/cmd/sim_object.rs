@@ -1,0 +1,206 @@
+//! `qhm sim render-object`: the simulator's ground truth for any object.
+//! A mesh (file or built-in, loaded by qhm-render's loaders) filled with a
+//! sample's volume, under the camera, lights and environment of the same
+//! scene TOML `qhm render` reads, path-traced by sim-light (no diffusion
+//! model). Writes the radiance (EXR, the units of `qhm render`) and the
+//! per-pixel variance of that estimate (OUT.var.exr).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use host::output::check_file_output;
+use qhm_render::{Light, Mesh, RenderSettings, Scene, SceneFile};
+use sim_light::SceneDesc;
+use sim_light::object::{
+    DeltaLight, EnvImage, ObjectImage, ObjectMesh, ObjectScene, PinholeCamera, RenderOptions,
+    render_object,
+};
+
+#[derive(Args, Debug)]
+pub struct RenderObjectArgs {
+    /// A sample preset (see `qhm sim presets`) or a sample TOML file.
+    #[arg(long)]
+    pub sample: String,
+    /// Mesh file (.obj or .ply; units set by the scene's [object] scale, default mm).
+    #[arg(long, conflicts_with = "builtin")]
+    pub mesh: Option<PathBuf>,
+    /// Built-in object: slab, sphere, teapot, bread.
+    #[arg(long)]
+    pub builtin: Option<String>,
+    /// Scene TOML (camera, lights, env map, object, render size), as for `qhm render`.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Camera paths per pixel and channel (overrides --quality).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Sample budget: ci (8 spp), preview (32), default (128), final (512).
+    #[arg(long, default_value = "preview")]
+    pub quality: String,
+    #[arg(long)]
+    pub width: Option<u32>,
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Seed of the light transport (default: the scene's [render] seed, else 1).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output radiance, .exr; the variance goes to OUT.var.exr beside it.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Replace existing output files.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// The variance file next to `out`: a.exr -> a.var.exr.
+pub fn variance_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{}.var.exr", stem.unwrap_or_else(|| "out".into())))
+}
+
+fn quality_spp(name: &str) -> Result<u32> {
+    Ok(match name {
+        "ci" => 8,
+        "preview" => 32,
+        "default" => 128,
+        "final" => 512,
+        other => bail!("unknown quality {other:?} (known: ci, preview, default, final)"),
+    })
+}
+
+/// qhm-render's scene as sim-light's plain data.
+pub fn object_scene(scene: &Scene, sample: sim_light::SampleDesc) -> ObjectScene {
+    let m = &scene.mesh;
+    ObjectScene {
+        mesh: ObjectMesh {
+            positions: m.positions.clone(),
+            normals: m.normals.clone(),
+            triangles: m.triangles.clone(),
+        },
+        sample,
+        camera: PinholeCamera {
+            eye: scene.camera.eye,
+            target: scene.camera.target,
+            up: scene.camera.up,
+            fov_y: scene.camera.fov_y,
+        },
+        lights: scene
+            .lights
+            .iter()
+            .map(|l| match *l {
+                Light::Directional {
+                    to_light,
+                    irradiance,
+                } => DeltaLight::Directional {
+                    to_light,
+                    irradiance,
+                },
+                Light::Point {
+                    position,
+                    intensity,
+                } => DeltaLight::Point {
+                    position,
+                    intensity,
+                },
+            })
+            .collect(),
+        env: scene.env.as_ref().map(|e| EnvImage {
+            width: e.width,
+            height: e.height,
+            texels: e.texels.clone(),
+            rotation: e.rotation,
+        }),
+        env_visible: scene.env_visible,
+    }
+}
+
+fn write_exr(path: &Path, w: u32, h: u32, px: &[[f32; 3]]) -> Result<()> {
+    exr::prelude::write_rgb_file(path, w as usize, h as usize, |x, y| {
+        let p = px[y * w as usize + x];
+        (p[0], p[1], p[2])
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
+
+pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
+    let var_out = variance_path(&a.output);
+    if !a
+        .output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+    {
+        bail!("-o {} must end in .exr", a.output.display());
+    }
+    check_file_output(&a.output, a.force)?;
+    check_file_output(&var_out, a.force)?;
+    let sample = match SceneDesc::load(&a.sample)? {
+        SceneDesc::Sample(s) => s,
+        SceneDesc::Target { .. } => bail!(
+            "--sample {}: a calibration target is an opaque board; an object needs a sample's volume",
+            a.sample
+        ),
+    };
+    let file = match &a.scene {
+        Some(p) => SceneFile::load(p).with_context(|| format!("scene {}", p.display()))?,
+        None => SceneFile::default(),
+    };
+    let mut scene = match (&a.mesh, &a.builtin) {
+        (Some(path), None) => {
+            let (scale, uv_scale) = file.object()?;
+            let mesh = Mesh::load(path, scale, uv_scale)
+                .with_context(|| format!("mesh {}", path.display()))?;
+            Scene::lit(mesh)
+        }
+        (None, Some(name)) => file.builtin_scene(name)?,
+        _ => bail!("give --mesh FILE or --builtin NAME"),
+    };
+    file.apply_scene(&mut scene)?;
+    let mut settings = RenderSettings::default();
+    file.apply_settings(&mut settings)?;
+    let opts = RenderOptions {
+        width: a.width.unwrap_or(settings.width),
+        height: a.height.unwrap_or(settings.height),
+        spp: match a.spp {
+            Some(s) => s,
+            None => quality_spp(&a.quality)?,
+        },
+        seed: a.seed.unwrap_or(settings.seed),
+        ..RenderOptions::default()
+    };
+    opts.validate()?;
+    let obj = object_scene(&scene, sample);
+    let bar = qhm_progress::Bar::new("render-object rows", opts.height as u64, a.quiet);
+    let img: ObjectImage = render_object(&obj, &opts, &|n| bar.inc(n), None)?;
+    bar.finish();
+    write_exr(&a.output, img.width, img.height, &img.radiance)?;
+    write_exr(&var_out, img.width, img.height, &img.variance)?;
+    let m = img.mean();
+    let e = img.mean_rel_error();
+    let s = img.stats;
+    eprintln!(
+        "qhm sim render-object: {} x {}, {} spp in {:.1} s; mean radiance {:.5} {:.5} {:.5} (+- {:.2} {:.2} {:.2} %); {} paths, {} events, {} light estimates ({} unconverged), {} lost, {} truncated -> {}, {}",
+        img.width,
+        img.height,
+        opts.spp,
+        img.secs,
+        m[0],
+        m[1],
+        m[2],
+        100.0 * e[0],
+        100.0 * e[1],
+        100.0 * e[2],
+        s.paths,
+        s.events,
+        s.nee,
+        s.nee_unconverged,
+        s.lost,
+        s.truncated,
+        a.output.display(),
+        var_out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
