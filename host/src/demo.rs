@@ -15,12 +15,10 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use qhm_acquire::plan::Step;
 use qhm_acquire::{
-    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, Scale, SimRig, SimRigConfig,
-    run_capture,
+    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, Scale, run_capture,
 };
 use qhm_imaging::Calibration;
 use qhm_imaging::pipeline::rectify_capture;
-use qhm_imaging::sim_cal::{Row, SimCalibrator};
 use qhm_model::fit::{FitOptions, fit_capture_with_progress};
 use qhm_model::{DipoleParams, MaterialModel};
 use qhm_progress::Bar;
@@ -28,6 +26,7 @@ use qhm_render::light::{EnvMap, Light};
 use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
 use serde::Serialize;
+use sim_devices::{Row, SimCalibrator, SimRig, SimRigConfig};
 
 use crate::output::{OutputKind, StagedDir};
 use crate::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};

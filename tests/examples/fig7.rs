@@ -38,12 +38,12 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3, Vec3};
 use qhm_acquire::{Manifest, Scale};
-use qhm_imaging::sim_cal::SimCalibrator;
 use qhm_model::MaterialModel;
 use qhm_render::bvh::Ray;
 use qhm_render::light::luminance;
 use qhm_render::mesh::{Mesh, MeshInput};
 use qhm_render::{Image, Light, Mode, RenderSettings, Scene, render_scene_camera};
+use sim_devices::SimCalibrator;
 use sim_light::{Illumination, RigTruth, SceneDesc, SimQuality, World};
 
 type Res<T> = Result<T, Box<dyn Error>>;

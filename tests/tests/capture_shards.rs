@@ -12,10 +12,10 @@ use std::time::Duration;
 use protocol::LaserColour;
 use qhm_acquire::dir::{merge_shards, shard_dir};
 use qhm_acquire::{
-    CaptureDir, Manifest, NoProgress, Plan, PlanConfig, RunOptions, Scale, SimRig, SimRigConfig,
-    run_capture,
+    CaptureDir, Manifest, NoProgress, Plan, PlanConfig, RunOptions, Scale, run_capture,
 };
 use sha2::{Digest, Sha256};
+use sim_devices::{SimRig, SimRigConfig};
 
 const SAMPLE: &str = "two-material";
 const SEED: u64 = 5;

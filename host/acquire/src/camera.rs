@@ -8,8 +8,8 @@
 //! derive its noise from the plan instead of from time, and lets every
 //! backend's frames be matched to the step that asked for them.
 //!
-//! Backends: the simulated camera (`crate::sim_rig`) and GenICam cameras
-//! through Aravis (`crate::aravis_camera`, feature `aravis`).
+//! Backends: GenICam cameras through Aravis (`crate::aravis_camera`, feature
+//! `aravis`), and the simulated camera (crate `sim-devices`, outside the host).
 
 use std::future::Future;
 use std::pin::Pin;

@@ -1,21 +1,21 @@
 //! Acquisition: the camera interface and its backends, the capture plan (paper
-//! Fig. 4, Table 1), capture runs into a crash-safe capture directory, and the
-//! built-in simulated rig.
+//! Fig. 4, Table 1), and capture runs into a crash-safe capture directory.
+//! Whether the rig is real or simulated is not known here: the simulated
+//! rig (crate `sim-devices`) implements [`Camera`] and [`Operator`] from outside.
 //!
 //! Main types: [`Camera`] (a trigger-fired camera), [`Plan`] (ordered steps of
 //! the three passes), [`CaptureDir`] (capture.toml, journal, frames),
 //! [`run_capture`] (executes the rest of a directory's plan through a
-//! [`qhm_link::Link`] and cameras), [`Operator`] (the person at the rig),
-//! [`SimRig`] (the built-in simulated rig).
+//! [`qhm_link::Link`] and cameras), [`Operator`] (the person at the rig).
 
 #[cfg(feature = "aravis")]
 pub mod aravis_camera;
+pub mod cal_plan;
 pub mod camera;
 pub mod dir;
 pub mod operator;
 pub mod plan;
 pub mod run;
-pub mod sim_rig;
 
 /// The link client the runs use, re-exported so callers need no second dependency.
 pub use qhm_link;
@@ -27,7 +27,6 @@ pub use dir::{CaptureDir, DirError, Manifest};
 pub use operator::{ConsoleOperator, Operator, OperatorError};
 pub use plan::{Plan, PlanConfig, PlanError, Scale};
 pub use run::{NoProgress, Progress, RunError, RunOptions, RunReport, run_capture, safe_off};
-pub use sim_rig::{SimHandle, SimOperator, SimRig, SimRigConfig, SimRigError};
 
 /// Opens real cameras from `N=DEVICE` specs (arc position N, GenICam device
 /// ID, serial or IP address), triggered by hardware line `Line1`. Needs the

@@ -2,7 +2,7 @@
 //! the light arc, putting a sample or calibration target on the turntable).
 //!
 //! On the real rig [`ConsoleOperator`] asks on the terminal and waits for
-//! Enter; on the simulated rig `SimOperator` (in `sim_rig`) does it at once.
+//! Enter; on the simulated rig `SimOperator` (crate `sim-devices`) does it at once.
 //! Everything else in a capture is the same for both (DESIGN.md principle 3).
 
 use std::io::{BufRead, Write};

@@ -39,6 +39,8 @@ pub enum Pass {
     Exiting,
     /// Pass 3: lamp images, all views and lights (local reflectance function).
     Reflectance,
+    /// A calibration capture's frames (`crate::cal_plan`; numbered 0).
+    Calibration,
 }
 
 impl Pass {
@@ -47,6 +49,7 @@ impl Pass {
             Pass::Entrance => 1,
             Pass::Exiting => 2,
             Pass::Reflectance => 3,
+            Pass::Calibration => 0,
         }
     }
 }
@@ -136,6 +139,10 @@ pub struct PlanConfig {
     pub rectified_size: u32,
     /// Trigger pulse width, us.
     pub pulse_us: u32,
+    /// A calibration capture: its steps come from here (`crate::cal_plan`),
+    /// and the pass fields above are not used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<crate::cal_plan::CalPlanConfig>,
 }
 
 const DEG: f64 = PI / 180.0;
@@ -172,6 +179,7 @@ impl PlanConfig {
             binning: 1,
             rectified_size: 256,
             pulse_us: 1000,
+            calibration: None,
         };
         match scale {
             Scale::Paper => base,
@@ -347,9 +355,18 @@ pub struct Step {
     pub exposure_index: u8,
     pub exposure_s: f64,
     pub cameras: Vec<u8>,
+    /// A calibration step: its target, binning and procedure (`crate::cal_plan`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<crate::cal_plan::CalStep>,
 }
 
 impl Step {
+    /// Sensor binning of this step's frames.
+    pub fn binning(&self, config: &PlanConfig) -> u32 {
+        self.calibration
+            .as_ref()
+            .map_or(config.binning, |c| c.binning)
+    }
     /// Triggers this step fires.
     pub fn triggers(&self) -> usize {
         match &self.light {
@@ -439,6 +456,10 @@ fn serpentine(v: &[f64], row: usize) -> Vec<f64> {
 impl Plan {
     pub fn new(config: PlanConfig) -> Result<Plan, PlanError> {
         config.validate()?;
+        if let Some(cal) = &config.calibration {
+            let steps = cal.steps()?;
+            return Ok(Plan { config, steps });
+        }
         let mut steps = Vec::new();
         let c = &config;
         let mut push = |pass, clamp, tt, arc, light: Light, exposures: &[f64], cams: &[u8]| {
@@ -453,6 +474,7 @@ impl Plan {
                     exposure_index: ei as u8,
                     exposure_s: e,
                     cameras: cams.to_vec(),
+                    calibration: None,
                 });
             }
         };
@@ -697,7 +719,9 @@ impl Plan {
         let timing = self.timing();
         let mut per_pass = [0usize; 3];
         for s in &self.steps {
-            per_pass[s.pass.number() as usize - 1] += s.frames();
+            if let Some(p) = (s.pass.number() as usize).checked_sub(1) {
+                per_pass[p] += s.frames();
+            }
         }
         PlanSummary {
             scale: self.config.scale,
@@ -791,6 +815,7 @@ mod tests {
                     Pass::Entrance => plan.config.entrance_turntable,
                     Pass::Exiting => plan.config.exiting_turntable,
                     Pass::Reflectance => plan.config.reflectance_turntable,
+                    Pass::Calibration => unreachable!("a capture plan"),
                 };
                 assert!((w[0].turntable - w[1].turntable).abs() <= 2.0 * PI / n as f64 + 1e-9);
             }

@@ -113,6 +113,8 @@ struct RigCache {
     turntable: f64,
     light_arc: f64,
     clamp: Option<f64>,
+    /// The calibration target the operator last put on the turntable.
+    target: Option<String>,
     laser: Option<LaserColour>,
     lamps: u8,
 }
@@ -200,9 +202,10 @@ pub async fn run_capture(
                             resets,
                         });
                     }
-                    let clamp = rig.clamp;
+                    // The clamp and the target are mechanical: a reset moves neither.
                     rig = RigCache {
-                        clamp, // the clamp is mechanical, a reset does not move it
+                        clamp: rig.clamp,
+                        target: rig.target.take(),
                         ..RigCache::default()
                     };
                     for c in cameras.iter_mut() {
@@ -307,6 +310,19 @@ async fn run_step(
         operator.move_laser_clamp(e).await?;
         rig.clamp = Some(e);
     }
+    // A calibration step's target, laser off while it is handled.
+    if let Some(cal) = &step.calibration
+        && rig.target.as_deref() != Some(cal.target.as_str())
+    {
+        link.laser_arm(false).await?;
+        rig.laser = None;
+        progress.note(&format!(
+            "operator: put the {} on the turntable",
+            cal.target
+        ));
+        operator.place_on_turntable(&cal.target).await?;
+        rig.target = Some(cal.target.clone());
+    }
     // Both axes at once; exposures wait until both stop and settle.
     let mut settle_s: f64 = 0.0;
     for (axis, mech, target, current) in [
@@ -365,7 +381,7 @@ async fn run_step(
     let want = CameraSettings {
         exposure_s: step.exposure_s,
         gain_db: plan.config.gain_db,
-        binning: plan.config.binning,
+        binning: step.binning(&plan.config),
     };
     let tags: Vec<u64> = (0..step.triggers()).map(|k| step.frame_tag(k)).collect();
     for &c in &step.cameras {

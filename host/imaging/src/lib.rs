@@ -10,12 +10,14 @@
 //!   calibration with Levenberg-Marquardt refinement ([`lm`]).
 //! - [`photometric`]: colour gains, lamp directions, laser plane angle and flux.
 //! - [`rectify`]: resampling onto the reference plane, laser stripe lines.
+//! - [`cal_compute`]: the calibration procedures on a calibration capture's frames.
 //! - [`calibration::Calibration`]: the versioned calibration file.
 //! - [`rectified`]: the rectified dataset (index.toml + EXR) read by the fitter.
 //!
 //! Units: mm, radians, linear RGB f32. Pixel coordinates have (0, 0) at the
 //! centre of the top-left pixel.
 
+pub mod cal_compute;
 pub mod calibration;
 pub mod camera;
 pub mod corners;
@@ -30,8 +32,6 @@ pub mod rectified;
 pub mod rectify;
 pub mod response;
 pub mod shards;
-#[cfg(feature = "sim")]
-pub mod sim_cal;
 pub mod synth;
 pub mod zhang;
 

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use qhm_imaging::Calibration;
-use qhm_imaging::sim_cal::SimCalibrator;
+use sim_devices::SimCalibrator;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Step {
@@ -17,7 +17,7 @@ pub enum Step {
     /// Relative colour of the cameras from the colour pattern.
     Colour,
     /// Intrinsics, distortion, poses (Zhang) and the turntable axis from the checkerboard
-    /// (on the turntable and on a spacer of known thickness, `sim_cal::SPACER_MM`).
+    /// (on the turntable and on a spacer of known thickness, `sim_devices::cal::SPACER_MM`).
     Geometry,
     /// Lamp irradiance from the reference white.
     Lamps,

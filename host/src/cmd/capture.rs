@@ -17,10 +17,11 @@ use qhm_acquire::plan::Step;
 use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
 use qhm_acquire::{
     Camera, CaptureDir, ConsoleOperator, DirError, Manifest, Operator, Plan, PlanConfig, Progress,
-    RunOptions, Scale, SimRig, run_capture, safe_off,
+    RunOptions, Scale, run_capture, safe_off,
 };
 use qhm_imaging::shards::Shard;
 use qhm_progress::Bar;
+use sim_devices::{SimRig, SimRigConfig};
 
 #[derive(Args, Debug)]
 pub struct CaptureArgs {
@@ -361,7 +362,7 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     let mut sim_rig: Option<SimRig> = None;
     let mut real_cameras: Vec<Box<dyn Camera>> = Vec::new();
     let (link, mut operator): (Link, Box<dyn Operator>) = if a.sim {
-        let mut cfg = qhm_acquire::SimRigConfig::new(&a.sample, scale, a.seed);
+        let mut cfg = SimRigConfig::new(&a.sample, scale, a.seed);
         if let Some(s) = a.sim_speed {
             if !(s.is_finite() && s > 0.0 && s <= 1000.0) {
                 bail!("--sim-speed must be in (0, 1000]");

@@ -1,11 +1,12 @@
 //! Runs a whole capture on the built-in simulated rig and prints how long it
-//! took: `cargo run --release -p qhm-acquire --example ci_capture -- [scale] [dir]`.
+//! took: `cargo run --release -p sim-devices --example ci_capture -- [scale] [dir]`.
 
 use std::time::Instant;
 
 use qhm_acquire::{
-    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, Scale, SimRig, run_capture,
+    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, Scale, run_capture,
 };
+use sim_devices::SimRig;
 
 struct Notes;
 impl Progress for Notes {

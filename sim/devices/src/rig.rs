@@ -27,14 +27,14 @@ use std::time::Duration;
 
 use qhm_link::{Link, LinkConfig, LinkError};
 use sim::{FaultConfig, RigHandle, RigState, SimConfig, TriggerEvent};
+use sim_light::sample::TargetDesc;
 use sim_light::{Illumination, LaserOn, PoseRadiance, RigTruth, SceneDesc, SimQuality, World};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
 
-use crate::camera::{
-    BoxFuture, Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameMeta, PixelFormat,
+use qhm_acquire::{
+    BoxFuture, Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameMeta, Operator,
+    OperatorError, PixelFormat, Scale,
 };
-use crate::operator::{Operator, OperatorError};
-use crate::plan::Scale;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SimRigError {
@@ -89,7 +89,33 @@ impl SimRigConfig {
             cache_bytes: 1 << 30,
         }
     }
+
+    /// The simulated rig for the calibration capture of `scale`
+    /// (`qhm_acquire::cal_plan`): the same rig (seed) as the capture's, the
+    /// colour pattern on the turntable to begin with. Targets are rendered
+    /// at `preview` quality or better whatever the scale (checkerboard
+    /// corners need pixels) and with at least `CALIBRATION_LAMP_PHOTONS`.
+    pub fn calibration(scale: Scale, seed: u64) -> SimRigConfig {
+        let quality = match scale {
+            Scale::Ci | Scale::Default => SimQuality::preview(),
+            Scale::Paper => SimQuality::default_scale(),
+        };
+        SimRigConfig {
+            quality: SimQuality {
+                lamp_photons: quality.lamp_photons.max(CALIBRATION_LAMP_PHOTONS),
+                ..quality
+            },
+            speed: 8.0,
+            ..SimRigConfig::new(qhm_acquire::cal_plan::COLOUR_PATTERN, scale, seed)
+        }
+    }
 }
+
+/// Lamp photons per channel of a calibration frame, at least: the patch
+/// means of two cameras share photons only where their pixels cover the same
+/// texels, so at 40 k (ci) the colour gains were off by up to 4 %; Monte Carlo
+/// noise limits the checkerboard corners below ~400 k.
+pub const CALIBRATION_LAMP_PHOTONS: u64 = 1_000_000;
 
 /// The operator's hands on the simulated rig, and fault injection.
 #[derive(Clone)]
@@ -117,10 +143,20 @@ impl SimHandle {
             .unwrap_or_else(|e| e.into_inner())
             .set_laser_mount(elevation);
     }
-    /// Put the sample (`"sample"`) or a target preset on the turntable.
+    /// Put the sample (`"sample"`), a target preset, or the checkerboard on
+    /// a spacer (`qhm_acquire::cal_plan::checkerboard_on_spacer`) on the turntable.
     pub fn place(&self, what: &str) -> Result<(), sim_light::Error> {
         let desc = if what == "sample" {
             self.sample.clone()
+        } else if let Some(mm) = qhm_acquire::cal_plan::spacer_of(what) {
+            let mut desc = SceneDesc::preset(qhm_acquire::cal_plan::CHECKERBOARD)?;
+            if let SceneDesc::Target {
+                target: TargetDesc::Checkerboard { height_mm, .. },
+            } = &mut desc
+            {
+                *height_mm = mm;
+            }
+            desc
         } else {
             SceneDesc::preset(what)?
         };
@@ -219,10 +255,13 @@ impl SimRig {
         }
         let hub = Hub {
             world: world.clone(),
+            binned: Vec::new(),
             state,
             seed: cfg.seed,
-            cache: VecDeque::new(),
-            cache_bytes: cfg.cache_bytes,
+            cache: RadianceCache {
+                entries: VecDeque::new(),
+                budget: cfg.cache_bytes,
+            },
             stop: stop.clone(),
         };
         std::thread::Builder::new()
@@ -296,13 +335,10 @@ impl Camera for SimCamera {
 
     fn configure(&mut self, settings: CameraSettings) -> BoxFuture<'_, Result<(), CameraError>> {
         let camera = self.index;
-        let r = if settings.binning != self.downscale {
+        let r = if ![1, 2, 4, 8, 16].contains(&settings.binning) {
             Err(CameraError::Unsupported {
                 camera,
-                what: format!(
-                    "binning {} (the simulated world renders at binning {})",
-                    settings.binning, self.downscale
-                ),
+                what: format!("binning {} (1, 2, 4, 8 or 16)", settings.binning),
             })
         } else if !(settings.exposure_s.is_finite() && settings.exposure_s > 0.0) {
             Err(CameraError::Unsupported {
@@ -371,13 +407,86 @@ impl Camera for SimCamera {
     }
 }
 
+/// A frame to expose on a trigger edge.
+struct Job {
+    camera: u8,
+    tag: u64,
+    settings: CameraSettings,
+    generation: u64,
+    counter: u64,
+    tx: UnboundedSender<FrameMsg>,
+}
+
+/// The current world rendered at binning `b` (built once per scene and binning).
+fn binned_world<'a>(
+    binned: &'a mut Vec<(u32, String, World)>,
+    world: &World,
+    b: u32,
+) -> Result<&'a World, sim_light::Error> {
+    let scene = world.desc().to_toml_string();
+    binned.retain(|(_, s, _)| *s == scene);
+    let i = match binned.iter().position(|(x, _, _)| *x == b) {
+        Some(i) => i,
+        None => {
+            let quality = SimQuality {
+                downscale: b,
+                ..*world.quality()
+            };
+            let w = World::new(world.desc().clone(), world.rig().clone(), quality)?;
+            binned.push((b, scene, w));
+            binned.len() - 1
+        }
+    };
+    binned[i].2.set_laser_mount(world.laser_mount());
+    Ok(&binned[i].2)
+}
+
+/// Rendered poses, most recently used last, within a byte budget.
+struct RadianceCache {
+    entries: VecDeque<(u64, Arc<PoseRadiance>, usize)>,
+    budget: usize,
+}
+
+impl RadianceCache {
+    /// The radiance of the pose `key` names, from the cache or rendered with `mc_seed`.
+    fn radiance(
+        &mut self,
+        world: &World,
+        ev: &TriggerEvent,
+        mc_seed: u64,
+        key: u64,
+    ) -> Result<Arc<PoseRadiance>, sim_light::Error> {
+        if let Some(i) = self.entries.iter().position(|(k, _, _)| *k == key) {
+            let hit = self.entries.remove(i).expect("index from position");
+            let r = hit.1.clone();
+            self.entries.push_back(hit);
+            return Ok(r);
+        }
+        let radiance = Arc::new(world.render_pose(&illumination(&ev.state), ev.mask, mc_seed)?);
+        let bytes = radiance
+            .images
+            .iter()
+            .flatten()
+            .map(|i| i.data.len() * 12)
+            .sum();
+        self.entries.push_back((key, radiance.clone(), bytes));
+        while self.entries.iter().map(|c| c.2).sum::<usize>() > self.budget
+            && self.entries.len() > 1
+        {
+            self.entries.pop_front();
+        }
+        Ok(radiance)
+    }
+}
+
 /// Renders and exposes on trigger edges.
 struct Hub {
     world: Arc<RwLock<World>>,
+    /// The current scene at binnings other than the world's: (binning, scene TOML, world).
+    binned: Vec<(u32, String, World)>,
     state: Arc<Mutex<HubState>>,
     seed: u64,
-    cache: VecDeque<(u64, Arc<PoseRadiance>, usize)>,
-    cache_bytes: usize,
+    cache: RadianceCache,
     stop: Arc<AtomicBool>,
 }
 
@@ -456,14 +565,6 @@ impl Hub {
     }
 
     fn on_trigger(&mut self, ev: &TriggerEvent) {
-        struct Job {
-            camera: u8,
-            tag: u64,
-            settings: CameraSettings,
-            generation: u64,
-            counter: u64,
-            tx: UnboundedSender<FrameMsg>,
-        }
         let mut jobs = Vec::new();
         {
             let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
@@ -488,48 +589,47 @@ impl Hub {
                 });
             }
         }
-        if jobs.is_empty() {
-            return;
-        }
-        let world = self.world.read().unwrap_or_else(|e| e.into_inner());
-        let key = pose_key(&world, ev);
-        let radiance = match self.cache.iter().position(|(k, _, _)| *k == key) {
-            Some(i) => {
-                let hit = self.cache.remove(i).expect("index from position");
-                let r = hit.1.clone();
-                self.cache.push_back(hit);
-                Ok(r)
-            }
-            None => world
-                .render_pose(&illumination(&ev.state), ev.mask, mix64(self.seed ^ key))
-                .map(Arc::new),
-        };
-        let radiance = match radiance {
-            Ok(r) => r,
-            Err(e) => {
-                for j in jobs {
-                    let _ = j.tx.send((
-                        j.generation,
-                        Err(CameraError::Driver(format!("simulated world: {e}"))),
-                    ));
+        // One rendering per binning the armed cameras asked for.
+        let mut binnings: Vec<u32> = jobs.iter().map(|j| j.settings.binning).collect();
+        binnings.sort_unstable();
+        binnings.dedup();
+        let shared = self.world.clone();
+        let world = shared.read().unwrap_or_else(|e| e.into_inner());
+        for b in binnings {
+            let group: Vec<&Job> = jobs.iter().filter(|j| j.settings.binning == b).collect();
+            let base = world.quality().downscale == b;
+            let binned = if base {
+                Ok(&*world)
+            } else {
+                binned_world(&mut self.binned, &world, b)
+            };
+            let key = if base {
+                pose_key(&world, ev)
+            } else {
+                mix64(pose_key(&world, ev) ^ b as u64)
+            };
+            let cache = &mut self.cache;
+            let radiance = binned.and_then(|w| {
+                cache
+                    .radiance(w, ev, mix64(self.seed ^ key), key)
+                    .map(|r| (w, r))
+            });
+            match radiance {
+                Ok((w, r)) => Self::expose(w, &r, ev, self.seed, &group),
+                Err(e) => {
+                    for j in group {
+                        let _ = j.tx.send((
+                            j.generation,
+                            Err(CameraError::Driver(format!("simulated world: {e}"))),
+                        ));
+                    }
                 }
-                return;
-            }
-        };
-        if self.cache.back().is_none_or(|(k, _, _)| *k != key) {
-            let bytes = radiance
-                .images
-                .iter()
-                .flatten()
-                .map(|i| i.data.len() * 12)
-                .sum();
-            self.cache.push_back((key, radiance.clone(), bytes));
-            while self.cache.iter().map(|c| c.2).sum::<usize>() > self.cache_bytes
-                && self.cache.len() > 1
-            {
-                self.cache.pop_front();
             }
         }
+    }
+
+    /// Exposes each job's sensor to the radiance and sends the frame.
+    fn expose(world: &World, radiance: &PoseRadiance, ev: &TriggerEvent, seed: u64, jobs: &[&Job]) {
         for j in jobs {
             let Some(img) = radiance.image(j.camera as usize) else {
                 continue;
@@ -539,7 +639,7 @@ impl Hub {
                 img,
                 j.settings.exposure_s,
                 gain,
-                noise_seed(self.seed, j.tag, j.camera),
+                noise_seed(seed, j.tag, j.camera),
             );
             let frame = Frame {
                 meta: FrameMeta {

@@ -9,16 +9,16 @@ use glam::{DMat3, DQuat, DVec2, DVec3};
 use sim_light::sample::{SceneDesc, TargetDesc};
 use sim_light::{Illumination, LaserOn, RigTruth, SimQuality, World};
 
-use crate::calibration::{Calibration, LampCal, LaserCal, Turntable};
-use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
-use crate::corners::detect_board;
-use crate::hdr::{self, MergeOptions};
-use crate::image::{Image8, ImageF};
-use crate::photometric;
-use crate::rectify::{self, Grid};
-use crate::response::{self, Bracket, FitRange, MnOptions, ResponseCurve};
-use crate::zhang::{self, PlanarView, Raised, ZhangOptions};
-use crate::{Error, Result};
+use qhm_imaging::calibration::{Calibration, LampCal, LaserCal, Turntable};
+use qhm_imaging::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
+use qhm_imaging::corners::detect_board;
+use qhm_imaging::hdr::{self, MergeOptions};
+use qhm_imaging::image::{Image8, ImageF};
+use qhm_imaging::photometric;
+use qhm_imaging::rectify::{self, Grid};
+use qhm_imaging::response::{self, Bracket, FitRange, MnOptions, ResponseCurve};
+use qhm_imaging::zhang::{self, PlanarView, Raised, ZhangOptions};
+use qhm_imaging::{Error, Result};
 
 /// One line of the recovered-vs-true table.
 #[derive(Debug, Clone)]
@@ -597,7 +597,7 @@ impl SimCalibrator {
                 "camera {k} has no geometry; run the geometry step first"
             ))
         })?;
-        Ok(crate::pipeline::binned(&g, self.binning()))
+        Ok(qhm_imaging::pipeline::binned(&g, self.binning()))
     }
 
     /// Relative colour of the cameras from the colour pattern (reference: the top camera).
