@@ -36,6 +36,11 @@ pub struct RdTable {
     pub near_radius: f32,
     /// ∫ w(r) R(r) dA over the plane, the near field's exact weight.
     near_integral: Vec3,
+    /// The classic dipole's constants per channel for the geometry factor
+    /// ([`RdTable::with_geometry`]); None = planar R_d(r) only.
+    geometry: Option<[qhm_model::dipole::Dipole; 3]>,
+    /// Φ_plane(r) per channel on the grid of `values` (with the geometry).
+    planar: Vec<Vec3>,
 }
 
 impl RdTable {
@@ -109,7 +114,93 @@ impl RdTable {
             r_max: r_max as f32,
             near_radius: 0.0,
             near_integral: Vec3::ZERO,
+            geometry: None,
+            planar: Vec::new(),
         }
+    }
+
+    /// The geometry factor. R_d(r) is the exitance of a flat half-space:
+    /// light entering at x_i leaves at x_o on the same plane. The classic
+    /// dipole is the flux -D n · grad(phi) through the surface of the field
+    /// of a real source one reduced mean free path z_r below x_i (along its
+    /// normal n_i) and a negative image z_v above it. On a curved or thin
+    /// object the flux is taken through the surface at x_o, along x_o's own
+    /// normal n_o, for the same two sources:
+    ///
+    ///   G = Φ / Φ_plane,  Φ = z_r' (s_tr d_r + 1) e^{-s_tr d_r} / d_r³ - z_v' (s_tr d_v + 1) e^{-s_tr d_v} / d_v³,
+    ///
+    /// with z_r' = n_o · (x_o - s_r), z_v' = n_o · (x_o - s_v), d the
+    /// distances from x_o to s_r = x_i - z_r n_i and s_v = x_i + z_v n_i, and
+    /// Φ_plane the same on a plane (z_r' = z_r, z_v' = -z_v): G = 1 there.
+    /// Across a convex terminator the real source lies deeper below x_o's
+    /// tangent plane and the flux leaving there is larger; through a thin
+    /// part lit from behind the flux points straight out of x_o. Negative
+    /// flux (into the surface, as in a concavity) counts as 0. The normals
+    /// are the mesh's own (its winding), so a mesh must be wound
+    /// consistently.
+    pub fn with_geometry(mut self, params: &DipoleParams) -> RdTable {
+        let g: [qhm_model::dipole::Dipole; 3] = std::array::from_fn(|c| params.channel(c));
+        let dr = 1.0 / self.inv_dr as f64;
+        self.planar = (0..self.values.len())
+            .map(|k| {
+                let r2 = (k as f64 * dr).powi(2);
+                let v: [f32; 3] = std::array::from_fn(|c| {
+                    let d = &g[c];
+                    let phi = |z: f64| {
+                        let dd = (r2 + z * z).sqrt();
+                        z * (d.sigma_tr * dd + 1.0) * (-d.sigma_tr * dd).exp() / (dd * dd * dd)
+                    };
+                    (phi(d.z_r) + phi(d.z_v)) as f32
+                });
+                Vec3::from(v)
+            })
+            .collect();
+        self.geometry = Some(g);
+        self
+    }
+
+    /// G for a sample at offset `dx` = x_o - x_i with normal `ni`, seen
+    /// from a query with normal `no` (see [`RdTable::with_geometry`]).
+    #[inline]
+    fn geometry_factor(&self, dx: Vec3, r: f32, ni: Vec3, no: Vec3) -> Vec3 {
+        let Some(g) = &self.geometry else {
+            return Vec3::ONE;
+        };
+        let h = no.dot(dx);
+        let c = no.dot(ni);
+        if h.abs() < 1e-4 * r.max(1e-3) && c > 0.9999 {
+            return Vec3::ONE;
+        }
+        let along = ni.dot(dx);
+        let r2 = r * r;
+        let planar = {
+            let x = r * self.inv_dr;
+            let i = (x as usize).min(self.planar.len().saturating_sub(2));
+            let t = (x - i as f32).min(1.0);
+            (self.planar[i] * (1.0 - t) + self.planar[i + 1] * t).to_array()
+        };
+        let mut out = [1.0f32; 3];
+        for k in 0..3 {
+            let d = &g[k];
+            let (zr, zv, st) = (d.z_r as f32, d.z_v as f32, d.sigma_tr as f32);
+            // z (s_tr d + 1) e^{-s_tr d} / d³ with a signed z.
+            let phi = |z: f32, d2: f32| {
+                let d2 = d2.max(1e-12);
+                let dd = d2.sqrt();
+                z * (st * dd + 1.0) * exp_neg(st * dd) / (d2 * dd)
+            };
+            let planar = planar[k];
+            // Real source s_r = x_i - z_r n_i, image s_v = x_i + z_v n_i.
+            let dr2 = r2 + 2.0 * zr * along + zr * zr;
+            let dv2 = r2 - 2.0 * zv * along + zv * zv;
+            let geo = phi(h + zr * c, dr2) - phi(h - zv * c, dv2);
+            out[k] = if planar > 0.0 && geo.is_finite() {
+                geo.max(0.0) / planar
+            } else {
+                1.0
+            };
+        }
+        Vec3::from(out)
     }
 
     /// Irradiance interpolation in the near field. The kernel is split as
@@ -173,6 +264,8 @@ struct Node {
     lo: Vec3,
     hi: Vec3,
     centroid: Vec3,
+    /// Irradiance-weighted mean normal (unit; area-weighted without light).
+    normal: Vec3,
     /// Summed area.
     area: f32,
     /// Area-weighted mean irradiance.
@@ -192,6 +285,7 @@ pub struct DipoleTree {
     pos: Vec<Vec3>,
     ea: Vec<Vec3>,
     area: Vec<f32>,
+    normal: Vec<Vec3>,
 }
 
 const LEAF_SIZE: usize = 8;
@@ -214,6 +308,7 @@ impl DipoleTree {
                 .map(|i| samples.irradiance[i] * samples.area[i])
                 .collect(),
             area: samples.area.clone(),
+            normal: samples.normal.clone(),
         };
         let area = &samples.area;
         if n > 0 {
@@ -249,6 +344,7 @@ impl DipoleTree {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let (mut a_sum, mut ea_sum, mut c_w, mut c_sum, mut c_area) =
             (0.0f32, Vec3::ZERO, 0.0f32, Vec3::ZERO, Vec3::ZERO);
+        let (mut n_w, mut n_area) = (Vec3::ZERO, Vec3::ZERO);
         for &i in &order[start..end] {
             let (p, a) = (self.pos[i as usize], area[i as usize]);
             lo = lo.min(p);
@@ -259,7 +355,13 @@ impl DipoleTree {
             c_w += w;
             c_sum += p * w;
             c_area += p * a;
+            let n = self.normal.get(i as usize).copied().unwrap_or(Vec3::Z);
+            n_w += n * w;
+            n_area += n * a;
         }
+        let normal = if c_w > 0.0 { n_w } else { n_area }
+            .try_normalize()
+            .unwrap_or(Vec3::Z);
         // Irradiance-weighted centroid; area-weighted when there is no light.
         let centroid = if c_w > 0.0 {
             c_sum / c_w
@@ -270,6 +372,7 @@ impl DipoleTree {
             lo,
             hi,
             centroid,
+            normal,
             area: a_sum,
             e: ea_sum / a_sum.max(f32::MIN_POSITIVE),
             start: start as u32,
@@ -310,14 +413,17 @@ impl DipoleTree {
     }
 
     /// Hierarchical sum M(x) = sum R_d(|x - x_i|) E_i A_i, skipping points
-    /// closer than `r_min` (the local disk of the LRF; 0 keeps all).
-    pub fn query(&self, x: Vec3, rd: &RdTable, epsilon: f32, r_min: f32) -> Vec3 {
-        self.query_stats(x, rd, epsilon, r_min, &mut QueryStats::default())
+    /// closer than `r_min` (the local disk of the LRF; 0 keeps all). `n` is
+    /// the surface normal at x in the mesh's winding, for the geometry
+    /// factor ([`RdTable::with_geometry`]).
+    pub fn query(&self, x: Vec3, n: Vec3, rd: &RdTable, epsilon: f32, r_min: f32) -> Vec3 {
+        self.query_stats(x, n, rd, epsilon, r_min, &mut QueryStats::default())
     }
 
     pub fn query_stats(
         &self,
         x: Vec3,
+        n: Vec3,
         rd: &RdTable,
         epsilon: f32,
         r_min: f32,
@@ -345,7 +451,9 @@ impl DipoleTree {
             // Far: the node's box is clear of the excluded disk and small in solid angle.
             let far_from_disk = r_min == 0.0 || d_near2 > r_min2;
             if !inside && far_from_disk && node.area < epsilon * dc2 {
-                nf.add(rd, dc2.sqrt(), node.e * node.area, node.area, &mut sum);
+                let r = dc2.sqrt();
+                let g = || rd.geometry_factor(x - node.centroid, r, node.normal, n);
+                nf.add(rd, r, g, node.e * node.area, node.area, &mut sum);
                 stats.nodes_used += 1;
                 continue;
             }
@@ -354,7 +462,9 @@ impl DipoleTree {
                     let d2 = self.pos[i as usize].distance_squared(x);
                     if d2 >= r_min2 {
                         let i = i as usize;
-                        nf.add(rd, d2.sqrt(), self.ea[i], self.area[i], &mut sum);
+                        let r = d2.sqrt();
+                        let g = || rd.geometry_factor(x - self.pos[i], r, self.normal[i], n);
+                        nf.add(rd, r, g, self.ea[i], self.area[i], &mut sum);
                         stats.points_used += 1;
                     }
                 }
@@ -369,18 +479,33 @@ impl DipoleTree {
 
     /// The O(n) sum over every sample (the same estimator, near field
     /// included), for comparison.
-    pub fn brute_force(&self, x: Vec3, rd: &RdTable, r_min: f32) -> Vec3 {
+    pub fn brute_force(&self, x: Vec3, n: Vec3, rd: &RdTable, r_min: f32) -> Vec3 {
         let r_min2 = r_min * r_min;
         let mut sum = Vec3::ZERO;
         let mut nf = NearSums::default();
         for i in 0..self.pos.len() {
             let d2 = self.pos[i].distance_squared(x);
             if d2 >= r_min2 {
-                nf.add(rd, d2.sqrt(), self.ea[i], self.area[i], &mut sum);
+                let r = d2.sqrt();
+                let g = || rd.geometry_factor(x - self.pos[i], r, self.normal[i], n);
+                nf.add(rd, r, g, self.ea[i], self.area[i], &mut sum);
             }
         }
         sum + nf.finish(rd)
     }
+}
+
+/// e^{-x} for x >= 0 to ~3e-6 relative (2^(-x log2 e) split into an
+/// exponent and a Taylor polynomial on [-1/2, 1/2]): the geometry factor's inner loop.
+#[inline]
+fn exp_neg(x: f32) -> f32 {
+    let t = -x.clamp(0.0, 87.0) * std::f32::consts::LOG2_E;
+    let i = t.round();
+    let f = t - i;
+    let p = 1.0
+        + f * (0.693_147_2
+            + f * (0.240_226_5 + f * (0.055_504_1 + f * (0.009_618_1 + f * 0.001_333_4))));
+    f32::from_bits(((i as i32 + 127) << 23) as u32) * p
 }
 
 /// The near field's sums Σ w R E A and Σ w R A ([`RdTable::with_near_field`]).
@@ -394,16 +519,29 @@ impl NearSums {
     /// One sample (or node) at distance `r` with E A = `ea` and area `a`:
     /// the far part goes into `sum`, the near part into the sums.
     #[inline]
-    fn add(&mut self, rd: &RdTable, r: f32, ea: Vec3, a: f32, sum: &mut Vec3) {
+    /// `g` is the geometry factor, applied to the far part (the near
+    /// field is a few sample spacings across, where the surface is flat).
+    fn add(
+        &mut self,
+        rd: &RdTable,
+        r: f32,
+        g: impl FnOnce() -> Vec3,
+        ea: Vec3,
+        a: f32,
+        sum: &mut Vec3,
+    ) {
         let k = rd.eval(r);
         let w = rd.near_weight(r);
-        if w > 0.0 {
+        if w >= 1.0 {
+            self.ea += k * ea;
+            self.a += k * a;
+        } else if w > 0.0 {
             let wk = k * w;
             self.ea += wk * ea;
             self.a += wk * a;
-            *sum += (k - wk) * ea;
+            *sum += (k - wk) * g() * ea;
         } else {
-            *sum += k * ea;
+            *sum += k * g() * ea;
         }
     }
 
@@ -424,6 +562,7 @@ fn empty_node() -> Node {
         lo: Vec3::ZERO,
         hi: Vec3::ZERO,
         centroid: Vec3::ZERO,
+        normal: Vec3::Z,
         area: 0.0,
         e: Vec3::ZERO,
         start: 0,
@@ -519,6 +658,79 @@ mod tests {
     }
 
     #[test]
+    fn geometry_factor_is_one_on_a_plane_and_follows_the_exit_normal() {
+        let p = crate::material::preset("skin1").unwrap();
+        let t = RdTable::new(&p, 0.0).with_geometry(&p);
+        // Coplanar: exactly the planar kernel.
+        for r in [0.3f32, 2.0, 7.0] {
+            let g = t.geometry_factor(Vec3::new(r, 0.0, 0.0), r, Vec3::Z, Vec3::Z);
+            assert!((g - Vec3::ONE).abs().max_element() < 1e-5, "{r}: {g}");
+        }
+        // Across a convex terminator (a sphere of radius 20, 5 mm apart):
+        // the real source lies deeper below the exit plane, more leaves.
+        let (ra, a) = (20.0f32, 0.25f32);
+        let (xi, xo) = (
+            Vec3::new(0.0, 0.0, ra),
+            Vec3::new(ra * a.sin(), 0.0, ra * a.cos()),
+        );
+        let g = t.geometry_factor(xo - xi, xo.distance(xi), xi / ra, xo / ra);
+        assert!(g.min_element() > 1.0, "{g}");
+        // The slab's far face, light entering on the near one: flux leaves
+        // along the exit normal, far above the planar kernel at that
+        // distance, and an exit normal turned the wrong way gets none.
+        let d = Vec3::new(0.0, 0.0, -4.0);
+        let through = t.geometry_factor(d, 4.0, Vec3::Z, -Vec3::Z);
+        assert!(through.min_element() > 2.0, "{through}");
+        assert_eq!(t.geometry_factor(d, 4.0, Vec3::Z, Vec3::Z), Vec3::ZERO);
+        // Without with_geometry: 1.
+        let plain = RdTable::new(&p, 0.0);
+        assert_eq!(plain.geometry_factor(d, 4.0, Vec3::Z, -Vec3::Z), Vec3::ONE);
+    }
+
+    #[test]
+    fn near_field_keeps_the_integral_and_removes_the_sample_pattern() {
+        // Poisson-disk samples on a wide flat slab under constant
+        // irradiance: M(x) should be R_total everywhere. The plain sum
+        // scatters with the sample pattern; the near field's mean does not.
+        let p = marble();
+        let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
+        let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
+        s.irradiance = vec![Vec3::ONE; s.pos.len()];
+        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
+        let tree = DipoleTree::new(&s);
+        let plain = RdTable::new(&p, 2.0 * radius);
+        let near = RdTable::new(&p, 2.0 * radius).with_near_field(6.0 * radius);
+        let probe = crate::points::poisson_disk(&mesh, 3000, 11);
+        let stats = |t: &RdTable| {
+            let v: Vec<f32> = probe
+                .pos
+                .iter()
+                .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
+                .map(|&q| tree.brute_force(q, Vec3::Z, t, 0.0).y)
+                .collect();
+            let m = v.iter().sum::<f32>() / v.len() as f32;
+            let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f32>() / v.len() as f32).sqrt();
+            (m, sd / m)
+        };
+        let total = p.channel(1).total() as f32;
+        let (m0, sd0) = stats(&plain);
+        let (m1, sd1) = stats(&near);
+        assert!((m1 - total).abs() < 0.01 * total, "{m1} vs {total}");
+        assert!((m0 - total).abs() < 0.02 * total, "{m0} vs {total}");
+        assert!(sd1 < 0.5 * sd0, "scatter {sd1} vs plain {sd0}");
+    }
+
+    #[test]
+    fn fast_exp_is_exp() {
+        for k in 0..2000 {
+            let x = k as f32 * 0.04;
+            let (a, b) = (exp_neg(x), (-x).exp());
+            assert!((a - b).abs() <= 5e-6 * b + 1e-37, "{x}: {a} vs {b}");
+        }
+        assert_eq!(exp_neg(200.0), exp_neg(87.0));
+    }
+
+    #[test]
     fn far_single_node_equals_point() {
         let s = SurfaceSamples {
             pos: vec![Vec3::ZERO],
@@ -531,7 +743,10 @@ mod tests {
         let tree = DipoleTree::new(&s);
         let rd = RdTable::new(&marble(), 0.0);
         let x = Vec3::new(3.0, 0.0, 0.0);
-        assert_eq!(tree.query(x, &rd, 0.1, 0.0), tree.brute_force(x, &rd, 0.0));
-        assert_eq!(tree.query(x, &rd, 0.1, 4.0), Vec3::ZERO);
+        assert_eq!(
+            tree.query(x, Vec3::Z, &rd, 0.1, 0.0),
+            tree.brute_force(x, Vec3::Z, &rd, 0.0)
+        );
+        assert_eq!(tree.query(x, Vec3::Z, &rd, 0.1, 4.0), Vec3::ZERO);
     }
 }

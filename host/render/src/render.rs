@@ -118,6 +118,9 @@ pub struct RenderSettings {
     /// equal-area radius sqrt(A / pi) (0 = plain sum; see
     /// [`RdTable::with_near_field`]).
     pub near_field: f32,
+    /// The dipole's exit-plane geometry factor on curved and thin objects
+    /// ([`RdTable::with_geometry`]).
+    pub geometry: bool,
     pub seed: u64,
     /// Quilt the material texture (else tile it periodically).
     pub synthesis: bool,
@@ -139,6 +142,7 @@ impl Default for RenderSettings {
             light_samples: 8,
             local_radius_mm: 0.0,
             near_field: NEAR_FIELD_SPREAD,
+            geometry: true,
             seed: 1,
             synthesis: true,
             synth: SynthSettings::default(),
@@ -267,8 +271,9 @@ pub struct Prepared {
     pub texture: SynthTexture,
     /// The radius left out of `rd` (depends on the mode, not the lights).
     hole: f32,
-    /// `rd`'s near field, `RenderSettings::near_field`.
+    /// `rd`'s near field and geometry factor, as in the settings.
     near_field: f32,
+    geometry: bool,
     eta: f64,
     /// F̄, the hemispherical mean of F_r: normalises the plain dipole's exit.
     fresnel_average: f64,
@@ -416,7 +421,13 @@ pub fn prepare<M: Material>(
     );
     let t = Instant::now();
     let hole = rd_hole(material, settings);
-    let rd = rd_table(material, &samples, hole, settings.near_field);
+    let rd = rd_table(
+        material,
+        &samples,
+        hole,
+        settings.near_field,
+        settings.geometry,
+    );
     stats.secs_tree += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let (tw, th) = material.texture_size();
@@ -438,6 +449,7 @@ pub fn prepare<M: Material>(
         texture,
         hole,
         near_field: settings.near_field,
+        geometry: settings.geometry,
         eta: dipole.eta,
         fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
         exit_shape: material.smooth_boundary().then(|| ExitShape::new(&dipole)),
@@ -493,13 +505,19 @@ fn rd_table<M: Material>(
     samples: &SurfaceSamples,
     hole: f32,
     near_field: f32,
+    geometry: bool,
 ) -> RdTable {
     // Every sample stands for an equal share A of the area; the kernel is
     // averaged over a disk of twice that radius, which hides the sample
     // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
     let radius = samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
-    RdTable::with_hole(&material.dipole(), KERNEL_SPREAD * radius, hole)
-        .with_near_field(near_field * radius)
+    let rd = RdTable::with_hole(&material.dipole(), KERNEL_SPREAD * radius, hole)
+        .with_near_field(near_field * radius);
+    if geometry {
+        rd.with_geometry(&material.dipole())
+    } else {
+        rd
+    }
 }
 
 impl Prepared {
@@ -533,10 +551,20 @@ impl Prepared {
         };
         self.tree = light_pass(scene, material, settings, &mut self.samples, entry, stats);
         let hole = rd_hole(material, settings);
-        if hole != self.hole || settings.near_field != self.near_field {
-            self.rd = rd_table(material, &self.samples, hole, settings.near_field);
+        if hole != self.hole
+            || settings.near_field != self.near_field
+            || settings.geometry != self.geometry
+        {
+            self.rd = rd_table(
+                material,
+                &self.samples,
+                hole,
+                settings.near_field,
+                settings.geometry,
+            );
             self.hole = hole;
             self.near_field = settings.near_field;
+            self.geometry = settings.geometry;
         }
         Ok(())
     }
@@ -732,6 +760,8 @@ fn radiance<M: Material>(
     // Two-sided: the surface faces the viewer.
     let mut ng = mesh.face_normal(t);
     let mut ns = mesh.shading_normal(t, hit.b1, hit.b2);
+    // The dipole's geometry factor takes the normals in the mesh's winding.
+    let n_winding = ns;
     if ng.dot(wo) < 0.0 {
         ng = -ng;
         ns = -ns;
@@ -785,6 +815,7 @@ fn radiance<M: Material>(
             _ => {
                 let m = prep.tree.query_stats(
                     p,
+                    n_winding,
                     &prep.rd,
                     settings.epsilon,
                     settings.local_radius_mm,
@@ -827,20 +858,28 @@ pub fn measure_hierarchy(
     n: usize,
 ) -> (f64, f64, f64) {
     let probe = points::poisson_disk(&scene.mesh, n, settings.seed ^ 0x5eed);
-    let pts = &probe.pos;
+    let pts: Vec<(Vec3, Vec3)> = probe
+        .pos
+        .iter()
+        .copied()
+        .zip(probe.normal.iter().copied())
+        .collect();
     let t = Instant::now();
     let tree: Vec<Vec3> = pts
         .par_iter()
-        .map(|&p| {
+        .map(|&(p, n)| {
             prep.tree
-                .query(p, &prep.rd, settings.epsilon, settings.local_radius_mm)
+                .query(p, n, &prep.rd, settings.epsilon, settings.local_radius_mm)
         })
         .collect();
     let t_tree = t.elapsed().as_secs_f64() / pts.len().max(1) as f64;
     let t = Instant::now();
     let brute: Vec<Vec3> = pts
         .par_iter()
-        .map(|&p| prep.tree.brute_force(p, &prep.rd, settings.local_radius_mm))
+        .map(|&(p, n)| {
+            prep.tree
+                .brute_force(p, n, &prep.rd, settings.local_radius_mm)
+        })
         .collect();
     let t_brute = t.elapsed().as_secs_f64() / pts.len().max(1) as f64;
     (t_tree, t_brute, relative_rms(&tree, &brute))
@@ -863,6 +902,46 @@ pub fn relative_rms(a: &[Vec3], b: &[Vec3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exit_shape_keeps_the_exitance_and_falls_to_grazing() {
+        for name in ["skin1", "marble"] {
+            let mut d = crate::material::preset(name).unwrap();
+            for model in [
+                qhm_model::profile::ProfileModel::Dipole,
+                qhm_model::profile::ProfileModel::Transport,
+            ] {
+                d.model = model;
+                let s = ExitShape::new(&d);
+                // ∫ S cos dw / pi = 2 ∫ S(mu) mu dmu = 1.
+                let n = 2000;
+                let mut sum = Vec3::ZERO;
+                for k in 0..n {
+                    let mu = (k as f32 + 0.5) / n as f32;
+                    sum += s.eval(mu) * (2.0 * mu / n as f32);
+                }
+                assert!(
+                    (sum - Vec3::ONE).abs().max_element() < 0.01,
+                    "{name} {model:?}: {sum}"
+                );
+                let (normal, grazing) = (s.eval(1.0), s.eval(0.02));
+                assert!(
+                    normal.min_element() > 0.95 && grazing.max_element() < 0.5,
+                    "{name} {model:?}: {normal} {grazing}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn entry_shape_is_one_at_the_normal_and_rises_obliquely() {
+        let d = crate::material::preset("skin1").unwrap();
+        let g = EntryShape::new(&d);
+        assert!((g.eval(1.0, 1.3) - Vec3::ONE).abs().max_element() < 1e-4);
+        let grazing = g.eval(0.05, 1.3);
+        // Lower albedo (blue, a' 0.68) rises most.
+        assert!(grazing.z > grazing.x && grazing.x > 1.05, "{grazing}");
+    }
 
     #[test]
     fn memory_estimate_counts_pixels_and_samples_and_refuses_what_is_not_there() {

@@ -42,6 +42,7 @@
 //! light_samples = 16
 //! local_radius_mm = 0.0
 //! near_field = 6.0              # irradiance interpolation radius, in sample radii (0 = off)
+//! geometry = true               # the dipole's exit-plane factor on curved/thin objects
 //! seed = 1
 //! ```
 
@@ -189,6 +190,7 @@ pub struct RenderToml {
     pub light_samples: Option<usize>,
     pub local_radius_mm: Option<f32>,
     pub near_field: Option<f32>,
+    pub geometry: Option<bool>,
     pub seed: Option<u64>,
     pub synthesis: Option<bool>,
 }
@@ -388,6 +390,7 @@ impl SceneFile {
         s.light_samples = r.light_samples.unwrap_or(s.light_samples);
         s.local_radius_mm = r.local_radius_mm.unwrap_or(s.local_radius_mm);
         s.near_field = r.near_field.unwrap_or(s.near_field);
+        s.geometry = r.geometry.unwrap_or(s.geometry);
         s.seed = r.seed.unwrap_or(s.seed);
         s.synthesis = r.synthesis.unwrap_or(s.synthesis);
         s.validate()
