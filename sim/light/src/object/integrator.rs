@@ -65,7 +65,7 @@ use crate::transport::sample_uniform_sphere_bits;
 /// Isotropic phase function.
 const PHASE: f32 = 1.0 / (4.0 * PI);
 /// Iterations of the entry-point walk.
-const WALK_STEPS: usize = 32;
+const WALK_STEPS: usize = 48;
 /// Surface events per path at most (glass-like bounces between walls).
 const MAX_SURFACE_EVENTS: u32 = 256;
 
@@ -79,6 +79,11 @@ pub struct RenderOptions {
     pub seed: u64,
     /// Scattering events per path at most (the rest is counted truncated).
     pub max_events: u32,
+    /// Count environment light that crossed the object without scattering
+    /// (the environment seen through the object as through a lens). On
+    /// for ground truth; off to compare the scattered light alone (the
+    /// delta lights' lens image, a point on the film, is never rendered).
+    pub unscattered_env: bool,
 }
 
 impl Default for RenderOptions {
@@ -89,6 +94,7 @@ impl Default for RenderOptions {
             spp: 64,
             seed: 1,
             max_events: 1_000_000,
+            unscattered_env: true,
         }
     }
 }
@@ -217,6 +223,7 @@ struct Ctx<'a> {
     /// of a point light.
     fd_step: f64,
     max_events: u32,
+    unscattered_env: bool,
 }
 
 /// Per-thread counters.
@@ -314,6 +321,7 @@ impl<'a> Ctx<'a> {
             eps: diag * 2e-5,
             fd_step: 1e-4,
             max_events: opts.max_events,
+            unscattered_env: opts.unscattered_env,
         })
     }
 
@@ -364,7 +372,7 @@ impl<'a> Ctx<'a> {
         let homogeneous = self.vol.grid.is_none();
         let (mut o, mut d) = (o, d);
         let (mut l, mut beta) = (0.0f32, 1.0f32);
-        let mut inside = false;
+        let (mut inside, mut entered) = (false, false);
         let mut primary = true;
         let (mut events, mut surface_events) = (0u32, 0u32);
         loop {
@@ -427,6 +435,7 @@ impl<'a> Ctx<'a> {
             let Some(h) = hit else {
                 if let Some(env) = &self.scene.env
                     && (!primary || self.scene.env_visible)
+                    && (self.unscattered_env || events > 0 || !entered)
                 {
                     l += beta * env.radiance(d)[c];
                 }
@@ -461,6 +470,7 @@ impl<'a> Ctx<'a> {
             }
             if s.wi.z * wo.z < 0.0 {
                 inside = !inside;
+                entered = true;
             }
             beta *= s.weight;
             if !(beta > 0.0 && beta.is_finite()) {
@@ -540,22 +550,37 @@ impl<'a> Ctx<'a> {
         }
         st.nee += 1;
         let mut converged = None;
+        let (mut lambda, mut r2_prev) = (1.0f32, f32::INFINITY);
         for _ in 0..WALK_STEPS {
             let x = p + w * h.t;
             let (ng, ns, flip) = self.normals(&h, w, 1.0);
             let (wl, dist, e) = light.at(x);
-            if ns.dot(wl) <= 0.0 || ng.dot(wl) <= 0.0 {
-                return 0.0; // the light is behind the surface here
-            }
-            let Some((t, _)) = refract(wl, ns, eta) else {
+            let c = ns.dot(wl);
+            // On the unlit side the walk goes on with the normal mirrored
+            // across the light's wavefront (grazing entry at the
+            // terminator), so points inside beyond the terminator, lit
+            // by rays refracted at grazing entry, find their entry.
+            let n_eff = if c > 0.0 {
+                ns
+            } else {
+                (ns - 2.0 * c * wl).normalize()
+            };
+            let Some((t, _)) = refract(wl, n_eff, eta) else {
                 return 0.0;
             };
-            let w_new = (-t).normalize();
-            if (w_new - w).length_squared() < 1e-12 {
+            let r = (-t).normalize() - w;
+            let r2 = r.length_squared();
+            if c > 0.0 && ng.dot(wl) > 0.0 && r2 < 1e-10 {
                 converged = Some((x, ng, ns, flip, wl, dist, e, t));
                 break;
             }
-            w = w_new;
+            // relaxed: the step halves whenever the residual grows (far
+            // from the entry the plain iteration overshoots)
+            if r2 > r2_prev {
+                lambda *= 0.5;
+            }
+            r2_prev = r2;
+            w = (w + r * lambda).normalize();
             let Some(h2) = self.bvh.intersect(p, w, f32::INFINITY) else {
                 return 0.0;
             };
