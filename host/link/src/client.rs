@@ -14,6 +14,9 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
 
 use crate::engine::{Engine, FromWire, Request, Shared};
+
+/// A heartbeat tick this late (wall time) is reported as a stall of the process.
+const STALL_WARNING: std::time::Duration = std::time::Duration::from_millis(100);
 use crate::rto::RttEstimator;
 use crate::transport::{BoxStream, Connector, serial_connector};
 use crate::{LinkConfig, LinkError};
@@ -226,7 +229,18 @@ impl Link {
             let mut tick = tokio::time::interval(interval);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             loop {
-                tick.tick().await;
+                let due = tick.tick().await;
+                // A tick this late means the process itself was not running
+                // (an overloaded machine): the MCU heard nothing meanwhile and
+                // may fault for it. Say so, so the fault has its cause.
+                let late = due.elapsed();
+                if late >= STALL_WARNING {
+                    tracing::warn!(
+                        "this process did not run for {:.2} s (machine overloaded?): the MCU \
+                         faults when it hears nothing for 250 ms while a motor moves or the laser is armed",
+                        late.as_secs_f64() + interval.as_secs_f64()
+                    );
+                }
                 if let Err(mpsc::error::TrySendError::Closed(_)) = beat_tx.try_send(()) {
                     return;
                 }
