@@ -166,8 +166,8 @@ fn slab_hit(lo: Vec3, hi: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     let t1 = (hi - o) * inv;
     let tn = t0.min(t1).max_element().max(0.0);
     let tf = t0.max(t1).min_element().min(t_max);
-    // NaN (0 * inf on a slab plane) compares false: treated as a hit
-    !(tn > tf * 1.000_000_2)
+    // NaN (0 * inf on a slab plane) is treated as a hit
+    tn <= tf * 1.000_000_2 || tn.is_nan() || tf.is_nan()
 }
 
 /// Moller-Trumbore: (t, b1, b2) for t > 0.

@@ -244,7 +244,8 @@ pub fn render_object(
     let start = Instant::now();
     let ctx = Ctx::new(scene, opts)?;
     let (w, h) = (opts.width, opts.height);
-    let rows: Vec<(Vec<[f32; 3]>, Vec<[f32; 3]>, ObjectStats)> = (0..h)
+    type Row = (Vec<[f32; 3]>, Vec<[f32; 3]>, ObjectStats);
+    let rows: Vec<Row> = (0..h)
         .into_par_iter()
         .map(|y| {
             let mut counts = Counts::default();
@@ -629,7 +630,7 @@ impl<'a> Ctx<'a> {
         let ids = mesh.triangles[tri];
         let vn = ids.map(|i| mesh.normals[i as usize].as_dvec3());
         let ng = (b - a).cross(cc - a).normalize() * flip as f64;
-        let face_only = vn.iter().any(|n| *n == DVec3::ZERO);
+        let face_only = vn.contains(&DVec3::ZERO);
         let eta = self.bsdf.eta as f64;
         let x = x.as_dvec3();
         let s = s as f64;
@@ -730,7 +731,8 @@ impl<'a> Ctx<'a> {
         let frame = Frame::new(ns);
         let wi = frame.to_local(wl);
         let f = self.bsdf.f(frame.to_local(-w), wi, TransportMode::Radiance);
-        if !(f > 0.0)
+        if f.is_nan()
+            || f <= 0.0
             || self
                 .bvh
                 .occluded(x + ng * self.eps, wl, dist - 2.0 * self.eps)
