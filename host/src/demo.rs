@@ -64,6 +64,45 @@ pub struct Reference {
     pub sigma_t_prime: [f64; 3],
 }
 
+/// The Monte Carlo behind the capture's frames: poses rendered (the
+/// exposures and cameras of a pose share one), photons, scattering events,
+/// and the wall time spent rendering.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct MonteCarlo {
+    pub poses: u64,
+    pub photons: u64,
+    pub events: u64,
+    pub seconds: f64,
+    /// Events per wall second of rendering.
+    pub events_per_s: f64,
+}
+
+impl From<sim_devices::RenderStats> for MonteCarlo {
+    fn from(s: sim_devices::RenderStats) -> Self {
+        MonteCarlo {
+            poses: s.poses,
+            photons: s.photons,
+            events: s.events,
+            seconds: s.seconds,
+            events_per_s: s.events_per_s(),
+        }
+    }
+}
+
+impl std::fmt::Display for MonteCarlo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Monte Carlo: {} poses, {:.1} M photons, {:.0} M events in {:.1} s: {:.1} M events/s",
+            self.poses,
+            self.photons as f64 / 1e6,
+            self.events as f64 / 1e6,
+            self.seconds,
+            self.events_per_s / 1e6
+        )
+    }
+}
+
 /// What the demo produced.
 #[derive(Debug, Clone, Serialize)]
 pub struct DemoSummary {
@@ -75,6 +114,8 @@ pub struct DemoSummary {
     pub calibration_rows_within_target: usize,
     pub calibration_rows: usize,
     pub frames: usize,
+    /// The simulated cameras' Monte Carlo during the capture.
+    pub monte_carlo: MonteCarlo,
     pub renders: Vec<String>,
     pub stages: Vec<StageTime>,
 }
@@ -296,7 +337,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     // 2. The three capture passes through the link and the cameras.
     let capture = out.join("capture");
     let plan = Plan::new(PlanConfig::for_scale(opts.scale))?;
-    let frames = stages.run("capture", || {
+    let (frames, monte_carlo) = stages.run("capture", || {
         let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
         rt.block_on(async {
             let manifest = Manifest::new("sim", &opts.sample, opts.seed, &plan);
@@ -324,7 +365,11 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             if !report.complete {
                 bail!("the capture stopped before the end of the plan");
             }
-            Ok(dir.frame_count())
+            let mc = MonteCarlo::from(rig.handle.render_stats());
+            if !opts.quiet {
+                eprintln!("   {mc}");
+            }
+            Ok((dir.frame_count(), mc))
         })
     })?;
 
@@ -424,6 +469,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
         calibration_rows_within_target: cal_ok,
         calibration_rows: cal_rows,
         frames,
+        monte_carlo,
         renders,
         stages: stages.times,
     };
@@ -475,6 +521,7 @@ pub fn summary_table(s: &DemoSummary) -> String {
         "calibration: {} of {} quantities within target",
         s.calibration_rows_within_target, s.calibration_rows
     );
+    let _ = writeln!(t, "capture {}", s.monte_carlo);
     let total: f64 = s.stages.iter().map(|x| x.seconds).sum();
     for st in &s.stages {
         let _ = writeln!(t, "{:<14} {:>8.1} s", st.stage, st.seconds);

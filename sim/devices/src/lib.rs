@@ -15,4 +15,4 @@ pub mod cal;
 pub mod rig;
 
 pub use cal::{Row, SimCalibrator};
-pub use rig::{SimHandle, SimOperator, SimRig, SimRigConfig, SimRigError, noise_seed};
+pub use rig::{RenderStats, SimHandle, SimOperator, SimRig, SimRigConfig, SimRigError, noise_seed};

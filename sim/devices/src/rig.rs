@@ -67,7 +67,7 @@ pub struct SimRigConfig {
 
 impl SimRigConfig {
     pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
-        let (quality, speed) = match scale {
+        let (mut quality, speed) = match scale {
             // Binned 4, not the sim's ci 8: at 0.7 mm pixels the stripe's
             // near field blurs into the fitted profile (a' and s'_t biased).
             Scale::Ci => (
@@ -80,6 +80,11 @@ impl SimRigConfig {
             Scale::Default => (SimQuality::preview(), 8.0),
             Scale::Paper => (SimQuality::default_scale(), 2.0),
         };
+        // Pass 1's oblique stripes feed only band fluxes (see
+        // `SimQuality::oblique_laser_photons`): a quarter of the photons.
+        if scale != Scale::Paper {
+            quality.oblique_laser_photons = Some(quality.laser_photons / 4);
+        }
         SimRigConfig {
             sample: sample.to_string(),
             quality,
@@ -123,9 +128,38 @@ pub struct SimHandle {
     rig: RigHandle,
     world: Arc<RwLock<World>>,
     sample: SceneDesc,
+    stats: Arc<Mutex<RenderStats>>,
+}
+
+/// The Monte Carlo the simulated cameras have run so far (cache misses only).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RenderStats {
+    /// Poses rendered.
+    pub poses: u64,
+    /// Photons launched.
+    pub photons: u64,
+    /// Real collisions (scattering or absorption) of those photons.
+    pub events: u64,
+    /// Wall time spent rendering, s.
+    pub seconds: f64,
+}
+
+impl RenderStats {
+    /// Scattering events per wall second of rendering.
+    pub fn events_per_s(&self) -> f64 {
+        if self.seconds > 0.0 {
+            self.events as f64 / self.seconds
+        } else {
+            0.0
+        }
+    }
 }
 
 impl SimHandle {
+    /// The Monte Carlo run so far: poses, photons, events and render time.
+    pub fn render_stats(&self) -> RenderStats {
+        *self.stats.lock().unwrap_or_else(|e| e.into_inner())
+    }
     /// The emulated MCU (fault injection: `reset_mcu`, `disconnect`, interlock).
     pub fn rig(&self) -> &RigHandle {
         &self.rig
@@ -253,6 +287,7 @@ impl SimRig {
                 rig: rig.clone(),
             }));
         }
+        let stats = Arc::new(Mutex::new(RenderStats::default()));
         let hub = Hub {
             world: world.clone(),
             binned: Vec::new(),
@@ -261,6 +296,7 @@ impl SimRig {
             cache: RadianceCache {
                 entries: VecDeque::new(),
                 budget: cfg.cache_bytes,
+                stats: stats.clone(),
             },
             stop: stop.clone(),
         };
@@ -274,6 +310,7 @@ impl SimRig {
                 rig,
                 world,
                 sample: desc,
+                stats,
             },
             stop,
         })
@@ -445,6 +482,7 @@ fn binned_world<'a>(
 struct RadianceCache {
     entries: VecDeque<(u64, Arc<PoseRadiance>, usize)>,
     budget: usize,
+    stats: Arc<Mutex<RenderStats>>,
 }
 
 impl RadianceCache {
@@ -462,7 +500,15 @@ impl RadianceCache {
             self.entries.push_back(hit);
             return Ok(r);
         }
+        let t = std::time::Instant::now();
         let radiance = Arc::new(world.render_pose(&illumination(&ev.state), ev.mask, mc_seed)?);
+        {
+            let mut st = self.stats.lock().unwrap_or_else(|e| e.into_inner());
+            st.poses += 1;
+            st.photons += radiance.tally.launched;
+            st.events += radiance.tally.events;
+            st.seconds += t.elapsed().as_secs_f64();
+        }
         let bytes = radiance
             .images
             .iter()

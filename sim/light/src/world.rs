@@ -20,6 +20,15 @@ pub struct SimQuality {
     pub downscale: u32,
     /// Photons per laser stripe (one channel).
     pub laser_photons: u64,
+    /// Photons per stripe while the laser is clamped off the vertical
+    /// (None: `laser_photons`). A capture's oblique stripes (pass 1) feed
+    /// only the entrance function, which reads each stripe's flux summed
+    /// over a band around its line: a sum over the whole stripe, it holds
+    /// its noise at a fraction of the photons the vertical stripes' profile
+    /// fits need. Calibration keeps `laser_photons` (its laser planes are
+    /// fitted at every clamp position).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub oblique_laser_photons: Option<u64>,
     /// Photons per lamp and channel.
     pub lamp_photons: u64,
     /// Height-field grid spacing, mm.
@@ -36,6 +45,7 @@ impl SimQuality {
         SimQuality {
             downscale: 8,
             laser_photons: 640_000,
+            oblique_laser_photons: None,
             lamp_photons: 40_000,
             surface_cell_mm: 0.2,
         }
@@ -46,6 +56,7 @@ impl SimQuality {
         SimQuality {
             downscale: 4,
             laser_photons: 640_000,
+            oblique_laser_photons: None,
             lamp_photons: 100_000,
             surface_cell_mm: 0.1,
         }
@@ -55,6 +66,7 @@ impl SimQuality {
         SimQuality {
             downscale: 1,
             laser_photons: 1_000_000,
+            oblique_laser_photons: None,
             lamp_photons: 1_000_000,
             surface_cell_mm: 0.1,
         }
@@ -64,6 +76,7 @@ impl SimQuality {
         SimQuality {
             downscale: 1,
             laser_photons: 40_000_000,
+            oblique_laser_photons: None,
             lamp_photons: 30_000_000,
             surface_cell_mm: 0.05,
         }
@@ -404,10 +417,15 @@ impl World {
                 length: g.length as f32,
             };
             let flux = self.rig.laser.power_w[l.channel] * l.power as f64;
+            let vertical = (self.laser_elevation - std::f64::consts::FRAC_PI_2).abs() < 1e-6;
+            let photons = match self.quality.oblique_laser_photons {
+                Some(n) if !vertical => n,
+                _ => self.quality.laser_photons,
+            };
             run(
                 source,
                 l.channel,
-                self.quality.laser_photons,
+                photons,
                 flux,
                 seed ^ 0x004C_4153_4552,
                 &mut tally,
