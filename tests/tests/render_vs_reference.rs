@@ -229,3 +229,31 @@ fn apple_sphere_back_lit_matches_the_path_tracer() {
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
     check("skin1-side", &[0, 1, 2], 0.15, 0.3, 0.17);
 }
+
+/// Every cached case at `qhm render`'s default quality (30,000 surface
+/// samples), with the bounds docs/render.md's table supports; prints the
+/// metrics. `cargo test --release -p tests --test render_vs_reference -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn every_cached_case_at_default_quality() {
+    let cases: [(&str, &[usize], f64, f64, f64); 5] = [
+        ("skin1-front", &[0, 1, 2], 0.16, 0.08, 0.18),
+        ("skin1-side", &[0, 1, 2], 0.14, 0.3, 0.16),
+        ("skin1-env", &[0, 1, 2], 0.2, 1.0, 0.22),
+        ("apple-front", &[0, 1, 2], 0.04, 0.14, 0.02),
+        ("apple-back", &[0, 1], 0.2, 0.3, 0.14),
+    ];
+    for (case, channels, mean, term, blocks) in cases {
+        let mut c = load(case);
+        c.toml = c
+            .toml
+            .replace("surface_samples = 12000", "surface_samples = 30000");
+        let model = MaterialModel::homogeneous(preset(&c.material).unwrap());
+        let m = metrics(&c, &render(&c, &model, false));
+        eprintln!(
+            "{case}: mean {:.3?} terminator {:.3?} blocks {:.3?}",
+            m.mean, m.terminator, m.block_rmse
+        );
+        within(&m, channels, mean, term, blocks).unwrap_or_else(|e| panic!("{case}: {e}"));
+    }
+}
