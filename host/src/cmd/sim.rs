@@ -34,8 +34,32 @@ pub enum SimAction {
     Bench(BenchArgs),
     /// Ground truth for any object: a mesh filled with a sample's volume, path-traced (EXR).
     RenderObject(crate::cmd::sim_object::RenderObjectArgs),
+    /// The true entrance function: f(theta)/f(0) tallied by the Monte Carlo, beside Fresnel's T(theta)/T(0).
+    Entrance(EntranceArgs),
     /// List the built-in samples and calibration targets.
     Presets,
+}
+
+#[derive(Args, Debug)]
+pub struct EntranceArgs {
+    /// A preset (see `qhm sim presets`) or a sample TOML file.
+    #[arg(long)]
+    pub sample: String,
+    /// Incidence angles from the normal, degrees in [0, 89] (comma-separated).
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0])]
+    pub theta: Vec<f64>,
+    /// Colour channel: red, green or blue.
+    #[arg(long, default_value = "green")]
+    pub channel: String,
+    /// Photons per angle.
+    #[arg(long, default_value_t = 200_000)]
+    pub photons: u64,
+    /// Seed of the light transport.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -120,6 +144,7 @@ pub fn run(args: SimArgs) -> Result<ExitCode> {
         Some(SimAction::Render(r)) => render(r),
         Some(SimAction::Bench(b)) => bench(b),
         Some(SimAction::RenderObject(r)) => crate::cmd::sim_object::run(r),
+        Some(SimAction::Entrance(e)) => entrance(e),
         Some(SimAction::Presets) => {
             let mut out = std::io::stdout().lock();
             for p in sim_light::SCENE_PRESETS {
@@ -289,6 +314,47 @@ fn write_exr(path: &Path, img: &sim_light::RadianceImage) -> Result<()> {
         (p[0], p[1], p[2])
     })
     .with_context(|| format!("writing {}", path.display()))
+}
+
+fn entrance(e: EntranceArgs) -> Result<ExitCode> {
+    let channel = match e.channel.as_str() {
+        "red" => 0,
+        "green" => 1,
+        "blue" => 2,
+        other => bail!("--channel {other:?}: expected red, green or blue"),
+    };
+    if e.photons < 1000 || e.photons > 1_000_000_000 {
+        bail!("--photons {}: expected 1000..=1e9", e.photons);
+    }
+    let world = World::new(
+        SceneDesc::load(&e.sample)?,
+        RigTruth::nominal(),
+        SimQuality::ci(),
+    )?;
+    let points =
+        sim_light::entrance::entrance_function(&world, &e.theta, channel, e.photons, e.seed)?;
+    let mut out = std::io::stdout().lock();
+    if e.json {
+        writeln!(out, "{}", serde_json::to_string_pretty(&points)?)?;
+    } else {
+        writeln!(
+            out,
+            "theta_deg  f            f/f(0)            T/T(0)   (f/f(0)) / (T/T(0))"
+        )?;
+        for p in &points {
+            writeln!(
+                out,
+                "{:9.1}  {:.5}  {:.5} +- {:.5}  {:.5}  {:.4}",
+                p.theta_deg,
+                p.f,
+                p.ratio,
+                p.ratio_err,
+                p.fresnel_ratio,
+                p.ratio / p.fresnel_ratio
+            )?;
+        }
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn bench(b: BenchArgs) -> Result<ExitCode> {

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::Error;
 use crate::rig::RigTruth;
-use crate::sample::SceneDesc;
+use crate::sample::{Coefficients, InclusionDesc, MaterialDesc, Relief, SceneDesc};
 use crate::transport::Source;
 use crate::world::{Illumination, LaserOn, SimQuality, World};
 
@@ -47,12 +47,32 @@ pub struct BenchReport {
     pub splat_share: Option<f64>,
 }
 
-/// A homogeneous or heterogeneous preset as a 200 x 200 x 100 mm slab.
+/// A homogeneous or heterogeneous preset as a 200 x 200 x 100 mm slab;
+/// "sponge-voxel" is the index-matched sponge (55 % air spheres r 0.4-1.2 mm
+/// on the voxel grid in the sponge's wall material, pores carved in the top),
+/// the cellular sponge's reference.
 pub fn medium_world(name: &str) -> Result<World, Error> {
-    let mut desc = SceneDesc::preset(name)?;
+    let mut desc = SceneDesc::preset(if name == "sponge-voxel" {
+        "sponge"
+    } else {
+        name
+    })?;
     if let SceneDesc::Sample(s) = &mut desc {
         // big enough that the walls do not matter
         s.size_mm = [200.0, 200.0, 100.0];
+        if name == "sponge-voxel" {
+            s.volume.material = MaterialDesc::Coefficients(Coefficients {
+                sigma_s: [3.6, 3.5, 2.4],
+                sigma_a: [0.004, 0.008, 0.75],
+            });
+            s.volume.inclusions = vec![InclusionDesc::matched(
+                MaterialDesc::Preset("air".into()),
+                0.55,
+                [0.4, 1.2],
+            )];
+            s.surface.relief = Relief::Pores;
+            s.surface.eta = 1.3;
+        }
     }
     World::new(desc, RigTruth::nominal(), SimQuality::ci())
 }
@@ -118,7 +138,10 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
     // red: the channel where the sponge's foam and voids differ most
     for (label, preset, ch) in [
         ("homogeneous whole-milk", "whole-milk", 1),
-        ("heterogeneous sponge", "sponge", 0),
+        ("index-matched sponge (voxel grid)", "sponge-voxel", 0),
+        ("cellular sponge", "sponge", 0),
+        ("cellular bread", "bread", 0),
+        ("cellular rice-cake", "rice-cake", 0),
     ] {
         let world = medium_world(preset)?;
         for threads in [1usize, 2] {

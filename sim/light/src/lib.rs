@@ -27,6 +27,8 @@
 
 pub mod bench;
 pub mod cells;
+pub mod cellwalk;
+pub mod entrance;
 pub mod medium;
 pub mod microfacet;
 pub mod object;

@@ -288,7 +288,7 @@ fn default_wall_roughness() -> f64 {
     0.3
 }
 fn default_period() -> f64 {
-    16.0
+    10.0
 }
 
 impl InclusionDesc {

@@ -255,6 +255,39 @@ impl HeightField {
         None
     }
 
+    /// First hit of a ray from a point in the air above the surface (not
+    /// necessarily above h_max; it may be inside a dip) with the surface
+    /// inside the footprint; None when it leaves upwards or past the footprint.
+    pub fn hit_from_air(&self, o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
+        if self.is_flat() {
+            if d.z >= 0.0 {
+                return None;
+            }
+            let t = ((self.flat_height - o.z) / d.z).max(0.0);
+            let p = o + d * t;
+            return self.inside_footprint(p.x, p.y).then_some((t, p));
+        }
+        if o.z > self.h_max + 1e-3 {
+            return self.intersect_from_above(o, d);
+        }
+        let dt = self.step();
+        let mut prev = 0.0f32;
+        let mut t = 0.5 * dt;
+        for _ in 0..1_000_000 {
+            let p = o + d * t;
+            if (p.z > self.h_max && d.z >= 0.0) || !self.inside_footprint(p.x, p.y) {
+                return None;
+            }
+            if p.z < self.height(p.x, p.y) {
+                let th = self.bisect(o, d, prev, t, true);
+                return Some((th, o + d * th));
+            }
+            prev = t;
+            t += dt;
+        }
+        None
+    }
+
     /// Refine a crossing between t_a (on the start side) and t_b.
     fn bisect(&self, o: Vec3, d: Vec3, mut ta: f32, mut tb: f32, from_above: bool) -> f32 {
         for _ in 0..20 {

@@ -27,6 +27,8 @@ use crate::surface::HeightField;
 pub const BLOCK: u64 = 2048;
 /// A photon that scatters this often is counted as truncated.
 pub const MAX_EVENTS: u32 = 1_000_000;
+/// A photon in a cellular medium that meets this many walls is truncated.
+pub const MAX_INTERFACES: u32 = 1_000_000;
 /// Share of scattering vertices (within a mean free path of the surface)
 /// that make a next-event estimate: consecutive vertices of one path see
 /// nearly the same light, so a tenth of them loses little and saves most of
@@ -167,6 +169,11 @@ pub struct Tally {
     pub events: u64,
     /// Null collisions of delta tracking.
     pub null_events: u64,
+    /// Photons that entered the volume (crossed into it at least once):
+    /// over `launched`, the entrance share of the incident light.
+    pub entered: u64,
+    /// Reflections and refractions at the cell walls of a cellular medium.
+    pub wall_events: u64,
 }
 
 impl std::ops::Add for Tally {
@@ -182,6 +189,8 @@ impl std::ops::Add for Tally {
         self.truncated += o.truncated;
         self.events += o.events;
         self.null_events += o.null_events;
+        self.entered += o.entered;
+        self.wall_events += o.wall_events;
         self
     }
 }
@@ -217,7 +226,7 @@ impl ExitGrid {
             counts: (0..n * n).map(|_| AtomicU32::new(0)).collect(),
         }
     }
-    fn record(&self, p: Vec3) {
+    pub(crate) fn record(&self, p: Vec3) {
         let half = self.n as f32 * self.cell / 2.0;
         let (i, j) = ((p.x + half) / self.cell, (p.y + half) / self.cell);
         if i >= 0.0 && j >= 0.0 && (i as usize) < self.n && (j as usize) < self.n {
@@ -280,13 +289,13 @@ pub struct Pass<'a> {
     pub vertex_nee: bool,
 }
 
-struct Local {
+pub(crate) struct Local {
     frame: Option<(Vec3, Vec3, Vec3)>,
 }
 
 impl Local {
     /// Orthonormal frame around n (Duff et al. 2017); None when n = +z.
-    fn new(n: Vec3) -> Local {
+    pub(crate) fn new(n: Vec3) -> Local {
         if n.z > 0.999_999 {
             return Local { frame: None };
         }
@@ -300,14 +309,14 @@ impl Local {
         }
     }
     #[inline]
-    fn to_local(&self, v: Vec3) -> Vec3 {
+    pub(crate) fn to_local(&self, v: Vec3) -> Vec3 {
         match self.frame {
             None => v,
             Some((s, t, n)) => Vec3::new(v.dot(s), v.dot(t), v.dot(n)),
         }
     }
     #[inline]
-    fn to_world(&self, v: Vec3) -> Vec3 {
+    pub(crate) fn to_world(&self, v: Vec3) -> Vec3 {
         match self.frame {
             None => v,
             Some((s, t, n)) => s * v.x + t * v.y + n * v.z,
@@ -392,6 +401,18 @@ impl Pass<'_> {
     /// Splat one surface event into every camera: `bsdf(wi_local) * cos`.
     #[inline]
     fn splat(&self, x: Vec3, local: &Local, f: impl Fn(Vec3) -> f32) {
+        self.splat_with(x, local, f, |x, w| self.scene.surface.visible(x, w))
+    }
+
+    /// `splat` with a visibility test of its own (point, unit direction).
+    #[inline]
+    pub(crate) fn splat_with(
+        &self,
+        x: Vec3,
+        local: &Local,
+        f: impl Fn(Vec3) -> f32,
+        visible: impl Fn(Vec3, Vec3) -> bool,
+    ) {
         let Some(accum) = self.accum else { return };
         for (k, cam) in self.cams.iter().enumerate() {
             let Some((px, inv, wc)) = cam.project(x) else {
@@ -402,7 +423,7 @@ impl Pass<'_> {
                 continue;
             }
             let v = f(wl) * wl.z * inv / cam.norm;
-            if v.is_nan() || v <= 0.0 || !self.scene.surface.visible(x, wc) {
+            if v.is_nan() || v <= 0.0 || !visible(x, wc) {
                 continue;
             }
             deposit(accum, k, px, v);
@@ -473,8 +494,30 @@ impl Pass<'_> {
         splat: bool,
         rng: &mut WalkRng,
     ) -> Option<BsdfSample> {
+        self.boundary_event_with(x, local, wo, bsdf, splat, rng, |x, w| {
+            self.scene.surface.visible(x, w)
+        })
+    }
+
+    /// `boundary_event` with a visibility test of its own for the splats.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn boundary_event_with(
+        &self,
+        x: Vec3,
+        local: &Local,
+        wo: Vec3,
+        bsdf: &Dielectric,
+        splat: bool,
+        rng: &mut WalkRng,
+        visible: impl Fn(Vec3, Vec3) -> bool,
+    ) -> Option<BsdfSample> {
         if splat {
-            self.splat(x, local, |wi| bsdf.f(wo, wi, TransportMode::Importance));
+            self.splat_with(
+                x,
+                local,
+                |wi| bsdf.f(wo, wi, TransportMode::Importance),
+                visible,
+            );
         }
         let s = bsdf.sample_f(
             wo,
@@ -650,6 +693,12 @@ impl Pass<'_> {
 
     /// One photon's whole life.
     fn trace(&self, o: Vec3, d: Vec3, rng: &mut WalkRng, table: &[(f32, f32)], t: &mut Tally) {
+        if let Some(vol) = &self.scene.volume
+            && let Some(cells) = &vol.cells
+        {
+            self.trace_cells(vol, cells, o, d, rng, table, t);
+            return;
+        }
         let hf = &self.scene.surface;
         let Some((_, x)) = hf.intersect_from_above(o, d) else {
             t.missed += 1;
@@ -680,6 +729,7 @@ impl Pass<'_> {
             t.reflected += 1;
             return;
         }
+        t.entered += 1;
         let d = local.to_world(s.wi);
         self.walk(x + d * 1e-4, d, rng, table, &bsdf, t);
     }
@@ -864,7 +914,7 @@ enum Crossing {
 /// albedo `alb` is absorbed, when each event absorbs with probability
 /// 1 - alb: geometric, N = 1 + floor(ln v / ln alb) with v uniform in (0, 1]
 /// (53 bits of `bits`). u64::MAX when nothing absorbs.
-fn geometric_events(alb: f32, bits: u64) -> u64 {
+pub(crate) fn geometric_events(alb: f32, bits: u64) -> u64 {
     if alb >= 1.0 {
         return u64::MAX;
     }
