@@ -25,7 +25,7 @@ pub enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Render a mesh made of a material model (EXR/PNG); export pbrt-v4/Mitsuba 3 snippets.
     Render(cmd::render::RenderArgs),
-    /// Calibrate the rig (response, colour, geometry, lamps, laser, all) into a calibration file.
+    /// Calibrate the rig: plan, capture the calibration targets, compute the calibration file (or all).
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// HDR-merge and rectify a capture directory into CAPTURE_DIR/rectified/.
     Rectify(cmd::rectify::RectifyArgs),

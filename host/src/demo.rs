@@ -5,7 +5,8 @@
 //! and compare the recovered parameters with the simulated sample's truth.
 //!
 //! Output directory (each part in its documented format):
-//! `calibration.toml`, `capture/` (frames, journal, `rectified/`), `model/`,
+//! `calibration.toml`, `calibration-capture/` (its frames and journal),
+//! `capture/` (frames, journal, `rectified/`), `model/`,
 //! `renders/` (EXR + PNG), `report/`, `summary.json`.
 
 use std::path::{Path, PathBuf};
@@ -26,7 +27,7 @@ use qhm_render::light::{EnvMap, Light};
 use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
 use serde::Serialize;
-use sim_devices::{Row, SimCalibrator, SimRig, SimRigConfig};
+use sim_devices::{SimRig, SimRigConfig};
 
 use crate::output::{OutputKind, StagedDir};
 use crate::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};
@@ -143,8 +144,9 @@ pub fn reference(sample: &str) -> Option<Reference> {
 
 /// What a demo writes into its output directory; `--force` removes these
 /// (whole, with anything inside them) and nothing else.
-pub const DEMO_PARTS: [&str; 6] = [
+pub const DEMO_PARTS: [&str; 7] = [
     "calibration.toml",
+    "calibration-capture",
     "capture",
     "model",
     "renders",
@@ -296,36 +298,18 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
         times: Vec::new(),
     };
 
-    // 1. Calibration of the simulated rig (the same seed as the capture's rig).
+    // 1. Calibration of the simulated rig (the same seed as the capture's
+    // rig), a calibration capture through the link and the cameras like any
+    // other, then the procedures on its frames.
     let cal_path = out.join("calibration.toml");
     let (cal_ok, cal_rows) = stages.run("calibrate", || {
-        // Calibration images are always taken at `preview` quality or better:
-        // checkerboard corners need pixels, whatever the capture's scale, and
-        // the calibration is kept in full-resolution pixel units.
-        let quality = match opts.scale {
-            Scale::Ci => sim_light::SimQuality::preview(),
-            _ => rig_cfg.quality,
-        };
-        let sim = SimCalibrator::new(opts.seed, quality);
-        let mut cal = Calibration::load_or_default(&cal_path)?;
-        cal.source = format!("sim seed {} scale {}", opts.seed, opts.scale.name());
-        let mut rows = Vec::new();
-        type CalStep = fn(&SimCalibrator, &mut Calibration, &mut Vec<Row>) -> Result<()>;
-        let steps: [(&str, CalStep); 5] = [
-            ("response", |s, c, r| Ok(s.response(c, r)?)),
-            ("geometry", |s, c, r| Ok(s.geometry(c, r)?)),
-            ("colour", |s, c, r| Ok(s.colour(c, r)?)),
-            ("lamps", |s, c, r| Ok(s.lamps(c, r)?)),
-            ("laser", |s, c, r| Ok(s.laser(c, r)?)),
-        ];
-        let b = Bar::new("calibrate", steps.len() as u64, opts.quiet);
-        for (name, step) in steps {
-            b.set_message(name);
-            step(&sim, &mut cal, &mut rows)?;
-            b.inc(1);
-        }
-        b.finish();
-        cal.save(&cal_path)?;
+        let rows = crate::calibrate::calibrate_sim(
+            opts.scale,
+            opts.seed,
+            &out.join("calibration-capture"),
+            &cal_path,
+            opts.quiet,
+        )?;
         if !opts.quiet {
             for r in &rows {
                 eprintln!("   {r}");

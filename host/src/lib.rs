@@ -2,10 +2,12 @@
 //! (`qhm-link`, `qhm-acquire`, `qhm-imaging`, `qhm-model`, `qhm-render`)
 //! used by the binary and by the cross-crate tests.
 //!
+//! - [`calibrate`]: the calibration capture and the procedures on its frames.
 //! - [`pipeline`]: capture plan -> exposure-bracket shots and rectification settings.
 //! - [`demo`]: the whole job on the built-in simulated rig (`qhm demo`).
 //! - [`output`]: the rule for writing outputs (refuse, `--force`, staged directories).
 
+pub mod calibrate;
 pub mod demo;
 pub mod output;
 pub mod pipeline;

@@ -43,7 +43,7 @@ use qhm_render::bvh::Ray;
 use qhm_render::light::luminance;
 use qhm_render::mesh::{Mesh, MeshInput};
 use qhm_render::{Image, Light, Mode, RenderSettings, Scene, render_scene_camera};
-use sim_devices::SimCalibrator;
+use sim_devices::SimTruth;
 use sim_light::{Illumination, RigTruth, SceneDesc, SimQuality, World};
 
 type Res<T> = Result<T, Box<dyn Error>>;
@@ -418,7 +418,7 @@ fn main() -> Res<()> {
     }];
     // The true camera at the binning, in the sample frame. Its pixel centres
     // are at integers, the film's at integer + 0.5.
-    let cam = SimCalibrator::new(a.seed, quality).true_camera(a.camera);
+    let cam = SimTruth::new(a.seed).true_camera(a.camera, quality.downscale);
     let origin = (to_sample * cam.centre()).as_vec3();
     let camera_ray = |x: f64, y: f64| Ray {
         o: origin,

@@ -101,7 +101,7 @@ pub fn run(args: CaptureArgs) -> Result<ExitCode> {
     }
 }
 
-fn hms(s: f64) -> String {
+pub(crate) fn hms(s: f64) -> String {
     let s = s.round() as u64;
     format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
 }

@@ -21,7 +21,7 @@ pub struct DemoArgs {
     #[arg(short = 'o', long = "out", default_value = "qhm-out")]
     pub out: PathBuf,
     /// Replace an earlier demo's output: deletes OUT's calibration.toml,
-    /// capture/, model/, renders/, report/ and summary.json, with everything
+    /// calibration-capture/, capture/, model/, renders/, report/ and summary.json, with everything
     /// inside them (your own files there too); other files in OUT are kept.
     #[arg(long)]
     pub force: bool,

@@ -8,11 +8,11 @@
 //!   trigger lines; [`SimOperator`] implements [`qhm_acquire::Operator`] by
 //!   changing the virtual world; [`SimHandle`] is the operator's hands and
 //!   fault injection.
-//! - [`cal`]: calibration of the simulated rig and its table of recovered
-//!   against true values.
+//! - [`cal`]: the simulated rig's true calibration, and the table of a
+//!   computed calibration against it.
 
 pub mod cal;
 pub mod rig;
 
-pub use cal::{Row, SimCalibrator};
+pub use cal::{Row, SimTruth};
 pub use rig::{RenderStats, SimHandle, SimOperator, SimRig, SimRigConfig, SimRigError, noise_seed};
