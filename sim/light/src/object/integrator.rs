@@ -301,6 +301,14 @@ impl<'a> Ctx<'a> {
         let tris: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
         let bvh = Bvh::new(&tris);
         let vol = Volume::build(&scene.sample);
+        if vol.cells.is_some() {
+            // The walk below knows voxel materials only; air cells behind
+            // refracting walls would be rendered as solid wall material.
+            return Err(ObjectError::Sample(format!(
+                "{:?} is a cellular medium (air cells with refracting walls), which render-object does not simulate yet; use a homogeneous or inclusion sample",
+                scene.sample.name
+            )));
+        }
         let tables = [0, 1, 2].map(|c| vol.channel_table(c));
         let sf = &scene.sample.surface;
         if !(sf.eta.is_finite() && sf.eta >= 1.0) {

@@ -6,6 +6,7 @@ use std::f32::consts::PI;
 use glam::Vec3;
 
 use super::*;
+use crate::medium::Volume;
 use crate::sample::{Coefficients, MaterialDesc, SampleDesc, SurfaceDesc, VolumeDesc};
 
 /// An axis-aligned box with per-face vertices and normals.
@@ -367,4 +368,37 @@ fn delta_light_estimates_match_exit_rays_on_a_curved_object() {
             ma[0]
         );
     }
+}
+
+#[test]
+fn cellular_samples_are_refused_not_misrendered() {
+    let crate::sample::SceneDesc::Sample(bread) =
+        crate::sample::SceneDesc::preset("bread").unwrap()
+    else {
+        unreachable!()
+    };
+    if Volume::build(&bread).cells.is_none() {
+        return; // bread is not cellular in this tree
+    }
+    let scene = ObjectScene {
+        mesh: sphere_mesh(2.0, 12, 6),
+        sample: bread,
+        camera: PinholeCamera {
+            eye: Vec3::new(0.0, -12.0, 0.0),
+            target: Vec3::ZERO,
+            up: Vec3::Z,
+            fov_y: 0.3,
+        },
+        lights: vec![],
+        env: Some(uniform_env(1.0)),
+        env_visible: true,
+    };
+    let opts = RenderOptions {
+        width: 2,
+        height: 2,
+        spp: 2,
+        ..RenderOptions::default()
+    };
+    let e = render_object(&scene, &opts, &|_| {}, None).unwrap_err();
+    assert!(e.to_string().contains("cellular"), "{e}");
 }
