@@ -175,8 +175,8 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "bread-crumb",
         Coefficients {
-            sigma_s: [2.4, 2.38, 2.07],
-            sigma_a: [0.072, 0.16, 0.29],
+            sigma_s: [3.1, 3.15, 2.95],
+            sigma_a: [0.053, 0.12, 0.22],
         },
         1.45,
     ),
