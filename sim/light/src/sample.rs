@@ -167,7 +167,7 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "sponge-foam",
         Coefficients {
-            sigma_s: [13.4, 12.9, 7.5],
+            sigma_s: [25.5, 24.5, 14.3],
             sigma_a: [0.025, 0.046, 3.4],
         },
         1.5,
@@ -183,8 +183,8 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "rice-cake-wall",
         Coefficients {
-            sigma_s: [3.7, 3.47, 2.45],
-            sigma_a: [0.008, 0.13, 0.85],
+            sigma_s: [2.78, 2.6, 1.84],
+            sigma_a: [0.006, 0.098, 0.64],
         },
         1.5,
     ),
