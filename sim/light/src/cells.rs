@@ -74,7 +74,7 @@ impl Cells {
     ) -> Cells {
         let l = period_mm as f32;
         let [r0, r1] = [radius_mm[0] as f32, radius_mm[1] as f32];
-        let mut rng = Rng::new(seed, 0x6365_6c6c_73);
+        let mut rng = Rng::new(seed, 0x0063_656c_6c73);
         // porosity lattice
         let m = 96usize;
         let h = l / m as f32;
