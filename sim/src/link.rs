@@ -37,6 +37,11 @@ pub const MAX_IDLE_WALL: Duration = Duration::from_millis(1);
 /// so the clock resumes where it stood instead of jumping past the
 /// heartbeat timeout before it sees them.
 pub const MAX_CATCH_UP_WALL: Duration = Duration::from_millis(50);
+/// Longest virtual time one catch-up may cover, whatever the speed: a fifth
+/// of the MCU's 250 ms heartbeat timeout. At speed 8 a 50 ms stall of the
+/// whole process (host and emulated MCU alike) would otherwise be 400 ms of
+/// rig time, and the MCU would fault on a host that only paused with it.
+pub const MAX_CATCH_UP_VIRTUAL_US: u64 = 50_000;
 
 /// Wall time to virtual time.
 #[derive(Debug, Clone, Copy)]
@@ -116,7 +121,8 @@ impl RigHandle {
         // finishes its state change before it can panic), so go on.
         let mut port = self.shared.port.lock().unwrap_or_else(|e| e.into_inner());
         let mut now = self.now_us();
-        let max_step = (MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64;
+        let max_step = ((MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64)
+            .min(MAX_CATCH_UP_VIRTUAL_US);
         let behind = now.saturating_sub(port.now_us());
         if behind > max_step {
             let skipped = behind - max_step;
