@@ -22,6 +22,7 @@ pub mod profile;
 pub use model::{EntranceFunction, ExitingFunction, LocalReflectance, MaterialModel, Texture};
 pub use profile::{Profile, ProfileFit, fit_profile};
 pub mod compress;
+pub mod denoise;
 mod exrio;
 pub mod format;
 
@@ -30,4 +31,5 @@ pub use format::{SaveOptions, SaveReport};
 pub mod fit;
 pub mod rectified;
 pub mod report;
+pub mod streaks;
 pub mod synth;

@@ -174,6 +174,11 @@ pub struct FitDiagnostics {
     /// The capture directory the model was fitted from, as the fit was given it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capture_dir: Option<String>,
+    /// The texels of the rectified window the model covers, [i0, j0,
+    /// width, height]: those every view's pass-2 stripes reach (model texel
+    /// (i, j) is rectified texel (i0 + i, j0 + j)). Absent: the whole window.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window: Option<[u32; 4]>,
 }
 
 /// The four-part material model.

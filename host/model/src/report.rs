@@ -838,6 +838,18 @@ fn lamp_images(model: &MaterialModel, idx: &[usize]) -> (Vec<Texture>, String) {
                 return None;
             }
             let mut t = data.read_image(&e.file).ok()?;
+            // The model covers only the window its scans reach.
+            if let Some([i0, j0, w, h]) = model.diagnostics.as_ref().and_then(|d| d.window) {
+                let (i0, j0, w, h) = (i0 as usize, j0 as usize, w as usize, h as usize);
+                if i0 + w > t.width || j0 + h > t.height {
+                    return None;
+                }
+                t = Texture {
+                    width: w,
+                    height: h,
+                    data: (0..w * h).map(|p| t.get(i0 + p % w, j0 + p / w)).collect(),
+                };
+            }
             for p in &mut t.data {
                 for c in 0..3 {
                     p[c] = (p[c] as f64 / e.irradiance[c]) as f32;

@@ -278,8 +278,20 @@ mod tests {
         // f_v at a view, at a few texels.
         let v = spec.views[2];
         let vf = [v[0] as f32, v[1] as f32, v[2] as f32];
-        for &(i, j) in &[(3usize, 4usize), (10, 20), (30, 7)] {
-            let uv = [(i as f32 + 0.5) / 48.0, (j as f32 + 0.5) / 48.0];
+        // The model covers the texels the scans reach (fit.json's window).
+        let [i0, j0, ww, wh] = model
+            .diagnostics
+            .as_ref()
+            .and_then(|d| d.window)
+            .expect("the fit records its window");
+        let at = |i: usize, j: usize| {
+            [
+                ((i - i0 as usize) as f32 + 0.5) / ww as f32,
+                ((j - j0 as usize) as f32 + 0.5) / wh as f32,
+            ]
+        };
+        for &(i, j) in &[(12usize, 4usize), (20, 20), (30, 7)] {
+            let uv = at(i, j);
             let got = model.exiting(uv, vf);
             let want = spec.fv(i, j, v) as f32;
             assert!(
@@ -289,8 +301,8 @@ mod tests {
         }
         // LRF at a lamp sample, one texel.
         let (l, v) = (spec.lamp_dirs[1], spec.views[0]);
-        let (i, j) = (5usize, 9usize);
-        let uv = [(i as f32 + 0.5) / 48.0, (j as f32 + 0.5) / 48.0];
+        let (i, j) = (15usize, 9usize);
+        let uv = at(i, j);
         let got = model.lrf(
             uv,
             [l[0] as f32, l[1] as f32, l[2] as f32],
