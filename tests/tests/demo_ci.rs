@@ -32,6 +32,16 @@ fn ci_demo_recovers_the_homogeneous_sample() {
     ] {
         assert!(out.join(part).is_file(), "{part} missing");
     }
+    // The calibration capture through the link and the cameras, every row
+    // of the simulated rig's truth table within target (seed 3).
+    assert_eq!(
+        (
+            summary.calibration_rows_within_target,
+            summary.calibration_rows
+        ),
+        (58, 58)
+    );
+    assert!(out.join("calibration-capture/capture.toml").is_file());
     assert_eq!(summary.renders.len(), 6);
     for r in &summary.renders {
         assert!(out.join(r).is_file(), "{r} missing");
