@@ -19,6 +19,9 @@
 //! material = "air"
 //! volume_fraction = 0.3
 //! radius_mm = [0.2, 1.0]           # radii uniform in this range
+//! # interface_eta = 1.45           # air cells with refracting walls (see InclusionDesc)
+//! # wall_roughness = 0.3           # GGX alpha of the cell walls
+//! # period_mm = 10.0               # side of the periodic tile of cells
 //! ```
 //! A target file has a single `[target]` table with `kind` =
 //! "checkerboard" | "colour-pattern" | "white" | "two-height".
