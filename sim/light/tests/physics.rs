@@ -302,7 +302,13 @@ fn identical_for_one_and_two_threads() {
     let w = World::new(
         SceneDesc::preset("sponge").unwrap(),
         RigTruth::perturbed(2),
-        SimQuality::ci(),
+        // Determinism holds photon by photon: a few blocks per thread say
+        // as much as a full ci pose (the cellular walk is slow).
+        SimQuality {
+            laser_photons: 20_000,
+            lamp_photons: 4_000,
+            ..SimQuality::ci()
+        },
     )
     .unwrap();
     let illum = Illumination {
