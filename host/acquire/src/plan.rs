@@ -233,10 +233,7 @@ impl PlanConfig {
             return bad("laser_colours", "empty");
         }
         if self.clamp_elevations.is_empty()
-            || !self
-                .clamp_elevations
-                .iter()
-                .any(|&e| is_vertical(e))
+            || !self.clamp_elevations.iter().any(|&e| is_vertical(e))
         {
             return bad("clamp_elevations", "must include the vertical (90 deg)");
         }
@@ -316,7 +313,10 @@ impl PlanConfig {
     pub fn entrance_needs_vertical(&self) -> bool {
         let oblique = self.clamp_elevations.iter().any(|&e| !is_vertical(e));
         let exiting = circle(self.exiting_turntable, false);
-        let views_in_pass_2 = self.entrance_cameras.iter().all(|c| self.cameras.contains(c))
+        let views_in_pass_2 = self
+            .entrance_cameras
+            .iter()
+            .all(|c| self.cameras.contains(c))
             && circle(self.entrance_turntable, false)
                 .iter()
                 .all(|t| exiting.iter().any(|e| (e - t).abs() < 1e-9));
