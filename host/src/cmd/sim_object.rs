@@ -11,7 +11,9 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use host::output::check_file_output;
-use qhm_render::{Light, Mesh, RenderSettings, Scene, SceneFile};
+use qhm_render::{Light, Scene};
+
+use crate::cmd::render::load_scene;
 use sim_light::SceneDesc;
 use sim_light::object::{
     DeltaLight, EnvImage, ObjectImage, ObjectMesh, ObjectScene, PinholeCamera, RenderOptions,
@@ -144,23 +146,8 @@ pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
             a.sample
         ),
     };
-    let file = match &a.scene {
-        Some(p) => SceneFile::load(p).with_context(|| format!("scene {}", p.display()))?,
-        None => SceneFile::default(),
-    };
-    let mut scene = match (&a.mesh, &a.builtin) {
-        (Some(path), None) => {
-            let (scale, uv_scale) = file.object()?;
-            let mesh = Mesh::load(path, scale, uv_scale)
-                .with_context(|| format!("mesh {}", path.display()))?;
-            Scene::lit(mesh)
-        }
-        (None, Some(name)) => file.builtin_scene(name)?,
-        _ => bail!("give --mesh FILE or --builtin NAME"),
-    };
-    file.apply_scene(&mut scene)?;
-    let mut settings = RenderSettings::default();
-    file.apply_settings(&mut settings)?;
+    let (scene, settings) =
+        load_scene(a.scene.as_deref(), a.mesh.as_deref(), a.builtin.as_deref())?;
     let opts = RenderOptions {
         width: a.width.unwrap_or(settings.width),
         height: a.height.unwrap_or(settings.height),
