@@ -13,7 +13,7 @@ use anyhow::{Context, Result, bail};
 use qhm_acquire::cal_plan::{self, CalPlanConfig};
 use qhm_acquire::dir::shell_word;
 use qhm_acquire::plan::{Light, Step};
-use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
+use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link};
 use qhm_acquire::{
     BoxFuture, Camera, CaptureDir, ConsoleOperator, Manifest, Operator, OperatorError, Plan,
     Progress, RunOptions, Scale, run_capture, safe_off,
@@ -176,16 +176,8 @@ async fn capture_async(a: &RigSpec, out: &Path) -> Result<bool> {
         sim_rig = Some(rig);
         op
     } else {
-        let port = a
-            .port
-            .as_ref()
-            .context("--port is required without --sim")?;
-        real_cameras = qhm_acquire::open_genicam_cameras(&a.cameras).context(
-            "opening the cameras (give --camera N=DEVICE for each camera the plan uses)",
-        )?;
-        let link = Link::open_serial(&port.to_string_lossy(), a.baud, LinkConfig::default())
-            .await
-            .with_context(|| format!("opening the rig on {}", port.display()))?;
+        let link;
+        (link, real_cameras) = crate::real_rig::open(a.port.as_deref(), a.baud, &a.cameras).await?;
         let op: Box<dyn Operator> = if a.yes {
             Box::new(Unattended)
         } else {

@@ -11,3 +11,4 @@ pub mod calibrate;
 pub mod demo;
 pub mod output;
 pub mod pipeline;
+pub mod real_rig;

@@ -14,7 +14,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use qhm_acquire::dir::{merge_shards, shard_dir, shell_word};
 use qhm_acquire::plan::Step;
-use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link, LinkConfig};
+use qhm_acquire::qhm_link::{DEFAULT_BAUD, Link};
 use qhm_acquire::{
     Camera, CaptureDir, ConsoleOperator, DirError, Manifest, Operator, Plan, PlanConfig, Progress,
     RunOptions, Scale, run_capture, safe_off,
@@ -380,16 +380,8 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         sim_rig = Some(rig);
         out
     } else {
-        let port = a
-            .port
-            .as_ref()
-            .context("--port is required without --sim")?;
-        real_cameras = qhm_acquire::open_genicam_cameras(&a.cameras).context(
-            "opening the cameras (give --camera N=DEVICE for each camera the plan uses)",
-        )?;
-        let link = Link::open_serial(&port.to_string_lossy(), a.baud, LinkConfig::default())
-            .await
-            .with_context(|| format!("opening the rig on {}", port.display()))?;
+        let link;
+        (link, real_cameras) = host::real_rig::open(a.port.as_deref(), a.baud, &a.cameras).await?;
         (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
     };
     let made_out = !out.exists();
