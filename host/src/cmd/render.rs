@@ -21,15 +21,8 @@ pub struct RenderArgs {
     /// wholemilk, sponge, bread, ricecake).
     #[arg(long)]
     pub model: String,
-    /// Mesh file (.obj or .ply; units set by the scene's [object] scale, default mm).
-    #[arg(long, conflicts_with = "builtin")]
-    pub mesh: Option<PathBuf>,
-    /// Built-in object: slab, sphere, teapot, bread.
-    #[arg(long)]
-    pub builtin: Option<String>,
-    /// Scene TOML (camera, lights, env map, object, render); see docs/render.md.
-    #[arg(long)]
-    pub scene: Option<PathBuf>,
+    #[command(flatten)]
+    pub object: SceneArgs,
     /// full | lrf-only | lrf-dipole | dipole-only (paper Fig. 9).
     #[arg(long)]
     pub mode: Option<String>,
@@ -89,33 +82,44 @@ pub(crate) fn load_model(spec: &str) -> anyhow::Result<(String, MaterialModel)> 
     Ok((name, m))
 }
 
-/// The scene `qhm render` and `qhm sim render-object` draw: the object from
-/// `--mesh` or `--builtin`, under the scene file's camera, lights, env map
-/// and settings (defaults without one).
-pub fn load_scene(
-    scene_file: Option<&Path>,
-    mesh: Option<&Path>,
-    builtin: Option<&str>,
-) -> anyhow::Result<(Scene, RenderSettings)> {
-    let file = match scene_file {
-        Some(p) => SceneFile::load(p).with_context(|| format!("scene {}", p.display()))?,
-        None => SceneFile::default(),
-    };
-    let mut scene = match (mesh, builtin) {
-        (Some(path), None) => {
-            let (scale, uv_scale) = file.object()?;
-            let mesh = Mesh::load(path, scale, uv_scale)
-                .with_context(|| format!("mesh {}", path.display()))?;
-            // Default lighting as for built-ins; the scene file may replace it.
-            Scene::lit(mesh)
-        }
-        (None, Some(name)) => file.builtin_scene(name)?,
-        _ => bail!("give --mesh FILE or --builtin NAME"),
-    };
-    file.apply_scene(&mut scene)?;
-    let mut settings = RenderSettings::default();
-    file.apply_settings(&mut settings)?;
-    Ok((scene, settings))
+/// The object and scene `qhm render` and `qhm sim render-object` draw.
+#[derive(Args, Debug)]
+pub struct SceneArgs {
+    /// Mesh file (.obj or .ply; units set by the scene's [object] scale, default mm).
+    #[arg(long, conflicts_with = "builtin")]
+    pub mesh: Option<PathBuf>,
+    /// Built-in object: slab, sphere, teapot, bread.
+    #[arg(long)]
+    pub builtin: Option<String>,
+    /// Scene TOML (camera, lights, env map, object, render); see docs/render.md.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+}
+
+impl SceneArgs {
+    /// The object from `--mesh` or `--builtin`, under the scene file's
+    /// camera, lights, env map and settings (defaults without one).
+    pub fn load(&self) -> anyhow::Result<(Scene, RenderSettings)> {
+        let file = match &self.scene {
+            Some(p) => SceneFile::load(p).with_context(|| format!("scene {}", p.display()))?,
+            None => SceneFile::default(),
+        };
+        let mut scene = match (&self.mesh, &self.builtin) {
+            (Some(path), None) => {
+                let (scale, uv_scale) = file.object()?;
+                let mesh = Mesh::load(path, scale, uv_scale)
+                    .with_context(|| format!("mesh {}", path.display()))?;
+                // Default lighting as for built-ins; the scene file may replace it.
+                Scene::lit(mesh)
+            }
+            (None, Some(name)) => file.builtin_scene(name)?,
+            _ => bail!("give --mesh FILE or --builtin NAME"),
+        };
+        file.apply_scene(&mut scene)?;
+        let mut settings = RenderSettings::default();
+        file.apply_settings(&mut settings)?;
+        Ok((scene, settings))
+    }
 }
 
 fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
@@ -165,11 +169,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
     if !matches!(ext.as_deref(), Some("exr" | "png")) {
         bail!("output {} must end in .exr or .png", output.display());
     }
-    let (scene, mut settings) = load_scene(
-        args.scene.as_deref(),
-        args.mesh.as_deref(),
-        args.builtin.as_deref(),
-    )?;
+    let (scene, mut settings) = args.object.load()?;
     if let Some(m) = &args.mode {
         settings.mode = m.parse::<Mode>()?;
     }

@@ -13,7 +13,7 @@ use clap::Args;
 use host::output::check_file_output;
 use qhm_render::{Light, Scene};
 
-use crate::cmd::render::load_scene;
+use crate::cmd::render::SceneArgs;
 use sim_light::SceneDesc;
 use sim_light::object::{
     DeltaLight, EnvImage, ObjectImage, ObjectMesh, ObjectScene, PinholeCamera, RenderOptions,
@@ -25,15 +25,8 @@ pub struct RenderObjectArgs {
     /// A sample preset (see `qhm sim presets`) or a sample TOML file.
     #[arg(long)]
     pub sample: String,
-    /// Mesh file (.obj or .ply; units set by the scene's [object] scale, default mm).
-    #[arg(long, conflicts_with = "builtin")]
-    pub mesh: Option<PathBuf>,
-    /// Built-in object: slab, sphere, teapot, bread.
-    #[arg(long)]
-    pub builtin: Option<String>,
-    /// Scene TOML (camera, lights, env map, object, render size), as for `qhm render`.
-    #[arg(long)]
-    pub scene: Option<PathBuf>,
+    #[command(flatten)]
+    pub object: SceneArgs,
     /// Camera paths per pixel and channel (overrides --quality).
     #[arg(long)]
     pub spp: Option<u32>,
@@ -146,8 +139,7 @@ pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
             a.sample
         ),
     };
-    let (scene, settings) =
-        load_scene(a.scene.as_deref(), a.mesh.as_deref(), a.builtin.as_deref())?;
+    let (scene, settings) = a.object.load()?;
     let opts = RenderOptions {
         width: a.width.unwrap_or(settings.width),
         height: a.height.unwrap_or(settings.height),
