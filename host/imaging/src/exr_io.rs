@@ -1,50 +1,63 @@
-//! RGB f32 EXR files (the rectified dataset and HDR images), NaN kept as NaN.
+//! [`ImageF`]s in the workspace's EXR files (qhm_formats::exr does the
+//! reading and writing): RGB f32, NaN kept as NaN.
 
 use std::path::Path;
+
+use qhm_formats::{FormatError, RgbImage, exr};
 
 use crate::image::ImageF;
 use crate::{Error, Result};
 
-/// Write a 1- or 3-channel image as RGB f32 EXR (one channel is copied to all three).
-pub fn write_rgb(path: &Path, img: &ImageF) -> Result<()> {
-    if img.channels != 1 && img.channels != 3 {
-        return Err(Error::Input(format!(
-            "EXR wants 1 or 3 channels, got {}",
-            img.channels
-        )));
-    }
-    let ch = img.channels;
-    exr::prelude::write_rgb_file(path, img.width, img.height, |x, y| {
-        let i = (y * img.width + x) * ch;
-        if ch == 1 {
-            (img.data[i], img.data[i], img.data[i])
-        } else {
-            (img.data[i], img.data[i + 1], img.data[i + 2])
+impl From<FormatError> for Error {
+    fn from(e: FormatError) -> Error {
+        match e {
+            FormatError::Io { path, source } => Error::Io { path, source },
+            FormatError::Exr { path, message } => Error::Exr { path, msg: message },
+            FormatError::Toml { path, message } | FormatError::Invalid { path, message } => {
+                Error::Format { path, msg: message }
+            }
         }
+    }
+}
+
+/// A 1- or 3-channel image as RGB (one channel is copied to all three).
+pub fn to_rgb(img: &ImageF) -> Result<RgbImage> {
+    let data = match img.channels {
+        1 => img.data.iter().map(|&v| [v; 3]).collect(),
+        3 => img
+            .data
+            .chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        n => {
+            return Err(Error::Input(format!("EXR wants 1 or 3 channels, got {n}")));
+        }
+    };
+    Ok(RgbImage {
+        width: img.width,
+        height: img.height,
+        data,
     })
-    .map_err(|e| Error::Exr {
-        path: path.to_path_buf(),
-        msg: e.to_string(),
-    })
+}
+
+/// An RGB image as a 3-channel [`ImageF`].
+pub fn from_rgb(img: RgbImage) -> ImageF {
+    ImageF {
+        width: img.width,
+        height: img.height,
+        channels: 3,
+        data: img.data.into_iter().flatten().collect(),
+    }
+}
+
+/// Write a 1- or 3-channel image as RGB f32 EXR.
+pub fn write_rgb(path: &Path, img: &ImageF) -> Result<()> {
+    Ok(exr::write_rgb(path, &to_rgb(img)?)?)
 }
 
 /// Read the first RGB(A) layer of an EXR file as a 3-channel f32 image.
 pub fn read_rgb(path: &Path) -> Result<ImageF> {
-    let img = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |res, _| ImageF::zeros(res.width(), res.height(), 3),
-        |im: &mut ImageF, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            let i = (pos.y() * im.width + pos.x()) * 3;
-            im.data[i] = r;
-            im.data[i + 1] = g;
-            im.data[i + 2] = b;
-        },
-    )
-    .map_err(|e| Error::Exr {
-        path: path.to_path_buf(),
-        msg: e.to_string(),
-    })?;
-    Ok(img.layer_data.channel_data.pixels)
+    Ok(from_rgb(exr::read_rgb(path)?))
 }
 
 #[cfg(test)]
@@ -69,6 +82,10 @@ mod tests {
                 assert_eq!(a, b);
             }
         }
+        let grey = ImageF::zeros(2, 2, 1);
+        write_rgb(&p, &grey).unwrap();
+        assert_eq!(read_rgb(&p).unwrap().channels, 3);
+        assert!(write_rgb(&p, &ImageF::zeros(2, 2, 2)).is_err());
         std::fs::write(dir.path().join("bad.exr"), b"not an exr").unwrap();
         assert!(read_rgb(&dir.path().join("bad.exr")).is_err());
     }

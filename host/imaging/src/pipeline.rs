@@ -200,10 +200,10 @@ pub fn process_shot(shot: &Shot, cal: &Calibration, opts: &RectifyOptions) -> Re
             let entry = StripeEntry {
                 file: String::new(),
                 pass: *pass,
-                channel: c,
+                channel: c as u8,
                 light_dir: light_dir.to_array(),
                 view_dir: view_dir.to_array(),
-                camera: shot.camera,
+                camera: shot.camera as u32,
                 flux_per_mm: flux,
                 line_point: line.point.to_array(),
                 line_dir: line.dir.to_array(),
@@ -220,7 +220,7 @@ pub fn process_shot(shot: &Shot, cal: &Calibration, opts: &RectifyOptions) -> Re
                 file: String::new(),
                 light_dir: (to_sample * dir_w).normalize().to_array(),
                 view_dir: view_dir.to_array(),
-                camera: shot.camera,
+                camera: shot.camera as u32,
                 irradiance: lamp.and_then(|l| l.irradiance).unwrap_or([f64::NAN; 3]),
             };
             Ok(Rectified::Lamp(rect, entry))
@@ -238,7 +238,7 @@ pub fn rectify_capture(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Index> {
     let mut writer = Writer::create(out, opts.grid)?;
-    writer.set_calibration(crate::rectified::CalibrationSummary::of(cal));
+    writer.set_calibration(crate::rectified::calibration_summary(cal));
     let mut done = 0;
     // Chunks bound memory and keep the index in shot order.
     for chunk in shots.chunks(64) {
@@ -289,7 +289,7 @@ pub fn rectify_shard(
         .collect();
     let mine: Vec<usize> = (0..shots.len()).filter(|&i| shard.takes(i)).collect();
     let mut writer = ShardWriter::create(out, opts.grid, shard, source, stripes, lamps, force)?;
-    writer.set_calibration(crate::rectified::CalibrationSummary::of(cal));
+    writer.set_calibration(crate::rectified::calibration_summary(cal));
     let mut done = 0;
     for chunk in mine.chunks(64) {
         let results: Vec<Result<Rectified>> = chunk

@@ -27,8 +27,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::image::ImageF;
 use crate::rectified::{
-    self, CalibrationSummary, FORMAT, Index, LampEntry, StripeEntry, VERSION, lamp_file,
-    stripe_file,
+    self, CalibrationSummary, Index, LampEntry, StripeEntry, VERSION, check_size, grid_entry,
+    lamp_file, stripe_file,
 };
 use crate::rectify::Grid;
 use crate::{Error, Result, exr_io};
@@ -189,7 +189,7 @@ impl ShardWriter {
         lamps_total: usize,
         force: bool,
     ) -> Result<ShardWriter> {
-        grid.validate()?;
+        let grid_entry = grid_entry(grid)?;
         let refuse = |path: PathBuf, msg: String| Err(Error::Format { path, msg });
         let index = root.join("index.toml");
         if index.exists() {
@@ -205,7 +205,7 @@ impl ShardWriter {
         for (other, path) in partials(root)? {
             let same_run = other.n == shard.n
                 && read_partial(&path)
-                    .is_ok_and(|p| p.source == source && p.index.grid == grid.into());
+                    .is_ok_and(|p| p.source == source && p.index.grid == grid_entry);
             if other == shard {
                 if !force {
                     return refuse(
@@ -243,14 +243,7 @@ impl ShardWriter {
                 source,
                 stripes_total,
                 lamps_total,
-                index: Index {
-                    format: FORMAT.into(),
-                    version: VERSION,
-                    grid: grid.into(),
-                    stripe: Vec::new(),
-                    lamp: Vec::new(),
-                    calibration: None,
-                },
+                index: Index::new(grid_entry),
             },
         })
     }
@@ -261,13 +254,7 @@ impl ShardWriter {
     }
 
     fn check(&self, img: &ImageF, n: usize, total: usize) -> Result<()> {
-        let g = &self.partial.index.grid;
-        if img.width != g.width || img.height != g.height {
-            return Err(Error::Input(format!(
-                "rectified image {}x{} does not match the grid {}x{}",
-                img.width, img.height, g.width, g.height
-            )));
-        }
+        check_size(img, &self.partial.index.grid)?;
         if n >= total {
             return Err(Error::Input(format!("image {n} of a dataset of {total}")));
         }
@@ -409,14 +396,8 @@ pub fn merge(root: &Path, expect: &ShardSource, force: bool) -> Result<Index> {
             ));
         }
     }
-    let mut merged = Index {
-        format: FORMAT.into(),
-        version: VERSION,
-        grid: first.index.grid,
-        stripe: Vec::new(),
-        lamp: Vec::new(),
-        calibration: first.index.calibration.clone(),
-    };
+    let mut merged = Index::new(first.index.grid);
+    merged.calibration = first.index.calibration.clone();
     let (stripes_total, lamps_total) = (first.stripes_total, first.lamps_total);
     for (_, p) in parts {
         merged.stripe.extend(p.index.stripe);
