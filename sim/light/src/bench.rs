@@ -10,7 +10,7 @@ use serde::Serialize;
 use crate::Error;
 use crate::rig::RigTruth;
 use crate::sample::{Coefficients, InclusionDesc, MaterialDesc, Relief, SceneDesc};
-use crate::transport::Source;
+use crate::walk::Source;
 use crate::world::{Illumination, LaserOn, SimQuality, World};
 
 /// One medium on one thread count.

@@ -386,7 +386,7 @@ mod tests {
                 rng.uniform() * 30.0 - 15.0,
                 rng.uniform() * 30.0 - 15.0,
             );
-            let d = crate::transport::sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+            let d = crate::walk::sample_uniform_sphere([rng.uniform(), rng.uniform()]);
             let march = |from_inside: bool| {
                 let mut t = 0.0f32;
                 while t < 6.0 {

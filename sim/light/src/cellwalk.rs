@@ -20,7 +20,7 @@ use crate::cells::Cells;
 use crate::medium::Volume;
 use crate::microfacet::{BsdfSample, Dielectric, TransportMode};
 use crate::rng::{WalkRng, exp1_from_bits};
-use crate::transport::{
+use crate::walk::{
     Local, MAX_EVENTS, MAX_INTERFACES, Pass, SurfaceKind, Tally, geometric_events,
     sample_uniform_sphere_bits,
 };

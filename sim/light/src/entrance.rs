@@ -14,7 +14,7 @@ use serde::Serialize;
 use crate::Error;
 use crate::microfacet::fr_dielectric;
 use crate::sample::SceneDesc;
-use crate::transport::Source;
+use crate::walk::Source;
 use crate::world::World;
 
 /// f at one incidence angle.

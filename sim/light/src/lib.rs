@@ -37,8 +37,11 @@ pub mod rng;
 pub mod sample;
 pub mod sensor;
 pub mod surface;
-pub mod transport;
+pub mod walk;
 mod world;
+
+// The object integrators still name the walk by its old module name.
+use walk as transport;
 
 pub use rig::{CameraTruth, LampTruth, LaserGeometry, LaserTruth, RigTruth};
 pub use sample::{
@@ -47,7 +50,7 @@ pub use sample::{
     material_preset,
 };
 pub use sensor::{Frame, FrameMeta, Response, Sensor};
-pub use transport::{ExitGrid, Source, Tally};
+pub use walk::{ExitGrid, Source, Tally};
 pub use world::{Illumination, LaserOn, PoseRadiance, RadianceImage, SimQuality, World};
 
 /// Errors of the simulated world.

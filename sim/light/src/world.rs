@@ -11,7 +11,7 @@ use crate::rig::RigTruth;
 use crate::sample::{Relief, SceneDesc, TargetDesc};
 use crate::sensor::Sensor;
 use crate::surface::HeightField;
-use crate::transport::{Accum, ExitGrid, Pass, Scene, Source, SplatCamera, SurfaceKind, Tally};
+use crate::walk::{Accum, ExitGrid, Pass, Scene, Source, SplatCamera, SurfaceKind, Tally};
 
 /// How finely the world is simulated.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

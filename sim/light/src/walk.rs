@@ -1,4 +1,4 @@
-//! Monte Carlo light transport: photons from a laser stripe, a lamp or a
+//! The Monte Carlo photon walk: photons from a laser stripe, a lamp or a
 //! pencil beam enter the sample through its rough dielectric top, random-walk
 //! through the volume (free flights sampled against s_t, delta tracking with
 //! the majorant in heterogeneous volumes, isotropic scattering with reduced
