@@ -51,3 +51,15 @@ impl ModelError {
         }
     }
 }
+
+impl From<qhm_formats::FormatError> for ModelError {
+    fn from(e: qhm_formats::FormatError) -> Self {
+        use qhm_formats::FormatError as F;
+        match e {
+            F::Io { path, source } => ModelError::Io { path, source },
+            F::Toml { path, message } => ModelError::Toml { path, message },
+            F::Exr { path, message } => ModelError::Exr { path, message },
+            F::Invalid { path, message } => ModelError::Invalid { path, message },
+        }
+    }
+}

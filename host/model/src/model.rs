@@ -16,44 +16,10 @@ use serde::{Deserialize, Serialize};
 use crate::dipole::{DipoleParams, fresnel_transmittance_ratio};
 use crate::profile::ChannelFit;
 
-/// An RGB f32 image stored row-major, row 0 first, sampled with wrap-around.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Texture {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<[f32; 3]>,
-}
-
-impl Texture {
-    pub fn filled(width: usize, height: usize, v: [f32; 3]) -> Self {
-        Texture {
-            width,
-            height,
-            data: vec![v; width * height],
-        }
-    }
-    pub fn get(&self, i: usize, j: usize) -> [f32; 3] {
-        self.data[j * self.width + i]
-    }
-    /// Bilinear lookup at `uv` in [0, 1)^2 (texel centres at (i + 0.5)/width), wrapping.
-    pub fn sample(&self, uv: [f32; 2]) -> [f32; 3] {
-        let (w, h) = (self.width as i64, self.height as i64);
-        let x = uv[0] * self.width as f32 - 0.5;
-        let y = uv[1] * self.height as f32 - 0.5;
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let wrap = |v: i64, n: i64| v.rem_euclid(n) as usize;
-        let (i0, j0) = (x0 as i64, y0 as i64);
-        let p00 = self.get(wrap(i0, w), wrap(j0, h));
-        let p10 = self.get(wrap(i0 + 1, w), wrap(j0, h));
-        let p01 = self.get(wrap(i0, w), wrap(j0 + 1, h));
-        let p11 = self.get(wrap(i0 + 1, w), wrap(j0 + 1, h));
-        std::array::from_fn(|c| {
-            (p00[c] * (1.0 - fx) + p10[c] * fx) * (1.0 - fy)
-                + (p01[c] * (1.0 - fx) + p11[c] * fx) * fy
-        })
-    }
-}
+/// An RGB f32 image stored row-major, row 0 first, sampled with wrap-around:
+/// the rectified dataset's image type (qhm_formats), so the fit reads its
+/// images without a copy.
+pub use qhm_formats::RgbImage as Texture;
 
 /// f(w_i) on a regular grid: θ_k = k·(π/2)/(n_theta-1), k < n_theta; φ_m = m·2π/n_phi.
 /// Value 1 at the vertical by definition.
