@@ -56,6 +56,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::bvh::{Bvh, Hit};
+use super::cellular::{CellFill, WallAlbedo, check_lights};
 use super::{DeltaLight, ObjectError, ObjectScene};
 use crate::medium::Volume;
 use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
@@ -187,14 +188,14 @@ impl ObjectImage {
 }
 
 /// An orthonormal frame around n.
-struct Frame {
+pub(super) struct Frame {
     s: Vec3,
     t: Vec3,
     n: Vec3,
 }
 
 impl Frame {
-    fn new(n: Vec3) -> Frame {
+    pub(super) fn new(n: Vec3) -> Frame {
         let s = n.any_orthonormal_vector();
         Frame {
             s,
@@ -202,28 +203,30 @@ impl Frame {
             n,
         }
     }
-    fn to_local(&self, v: Vec3) -> Vec3 {
+    pub(super) fn to_local(&self, v: Vec3) -> Vec3 {
         Vec3::new(v.dot(self.s), v.dot(self.t), v.dot(self.n))
     }
-    fn to_world(&self, v: Vec3) -> Vec3 {
+    pub(super) fn to_world(&self, v: Vec3) -> Vec3 {
         self.s * v.x + self.t * v.y + self.n * v.z
     }
 }
 
 /// The prepared scene.
-struct Ctx<'a> {
-    scene: &'a ObjectScene,
-    bvh: Bvh,
+pub(super) struct Ctx<'a> {
+    pub(super) scene: &'a ObjectScene,
+    pub(super) bvh: Bvh,
     vol: Volume,
-    tables: [Vec<(f32, f32)>; 3],
-    bsdf: Dielectric,
+    pub(super) tables: [Vec<(f32, f32)>; 3],
+    pub(super) bsdf: Dielectric,
     smooth: bool,
-    eps: f32,
+    pub(super) eps: f32,
     /// Finite-difference step: mm across a directional beam, radians out
     /// of a point light.
     fd_step: f64,
-    max_events: u32,
-    unscattered_env: bool,
+    pub(super) max_events: u32,
+    pub(super) unscattered_env: bool,
+    /// The wall albedo table of a cellular sample (its cells are `vol.cells`).
+    wall_albedo: Option<WallAlbedo>,
 }
 
 /// Per-thread counters.
@@ -301,20 +304,19 @@ impl<'a> Ctx<'a> {
         let tris: Vec<[Vec3; 3]> = (0..mesh.triangles.len()).map(|t| mesh.corners(t)).collect();
         let bvh = Bvh::new(&tris);
         let vol = Volume::build(&scene.sample);
-        if vol.cells.is_some() {
-            // The walk below knows voxel materials only; air cells behind
-            // refracting walls would be rendered as solid wall material.
-            return Err(ObjectError::Sample(format!(
-                "{:?} is a cellular medium (air cells with refracting walls), which render-object does not simulate yet; use a homogeneous or inclusion sample",
-                scene.sample.name
-            )));
-        }
         let tables = [0, 1, 2].map(|c| vol.channel_table(c));
         let sf = &scene.sample.surface;
         if !(sf.eta.is_finite() && sf.eta >= 1.0) {
             return Err(ObjectError::Sample(format!("eta {} must be >= 1", sf.eta)));
         }
         let bsdf = Dielectric::new(sf.eta as f32, sf.roughness as f32);
+        let wall_albedo = match &vol.cells {
+            Some(cells) => {
+                check_lights(&scene.lights, &bsdf, cells)?;
+                Some(WallAlbedo::new(&cells.wall))
+            }
+            None => None,
+        };
         let (lo, hi) = mesh.bounds();
         let diag = (hi - lo).length();
         if !(diag.is_finite() && diag > 0.0) {
@@ -331,6 +333,7 @@ impl<'a> Ctx<'a> {
             fd_step: 1e-4,
             max_events: opts.max_events,
             unscattered_env: opts.unscattered_env,
+            wall_albedo,
         })
     }
 
@@ -363,7 +366,7 @@ impl<'a> Ctx<'a> {
 
     /// Outward geometric and shading normals at a hit, oriented so the
     /// geometric one has the sign `sign` against `d` (+1: leaving along d).
-    fn normals(&self, h: &Hit, d: Vec3, sign: f32) -> (Vec3, Vec3, f32) {
+    pub(super) fn normals(&self, h: &Hit, d: Vec3, sign: f32) -> (Vec3, Vec3, f32) {
         let mesh = &self.scene.mesh;
         let t = h.tri as usize;
         let ng = mesh.face_normal(t);
@@ -375,6 +378,10 @@ impl<'a> Ctx<'a> {
     /// Radiance of channel `c` along the camera ray (o, d).
     fn radiance(&self, o: Vec3, d: Vec3, c: usize, rng: &mut WalkRng, counts: &mut Counts) -> f32 {
         let st = &mut counts.0;
+        if let (Some(cells), Some(albedo)) = (&self.vol.cells, &self.wall_albedo) {
+            let fill = CellFill { cells, albedo };
+            return self.radiance_cells(&fill, o, d, c, rng, st);
+        }
         st.paths += 1;
         let table = &self.tables[c];
         let maj = self.vol.majorant[c];
@@ -535,7 +542,7 @@ impl<'a> Ctx<'a> {
     }
 
     /// The roulette probability of a vertex estimate over distance `s`.
-    fn nee_probability(&self, c: usize, s: f32) -> f32 {
+    pub(super) fn nee_probability(&self, c: usize, s: f32) -> f32 {
         (10.0 * (-self.vol.majorant[c] * s).exp()).clamp(0.05, 1.0)
     }
 

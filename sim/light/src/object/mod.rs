@@ -16,9 +16,12 @@
 //! its irradiance on a surface facing it, a point light by its radiant
 //! intensity; the environment is a lat-long map with z up (u = phi / 2 pi,
 //! v = theta / pi, nearest texel, rotated about z). The estimator is in
-//! [`integrator`].
+//! [`integrator`]; a cellular sample's (air cells with refracting walls,
+//! the lattice tiled in object space, pores open where cells cut the
+//! surface) in `cellular`.
 
 pub mod bvh;
+mod cellular;
 pub mod integrator;
 
 use glam::Vec3;
