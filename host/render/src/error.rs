@@ -86,3 +86,15 @@ pub enum RenderError {
     #[error("material: {0}")]
     Material(String),
 }
+
+impl From<qhm_formats::FormatError> for RenderError {
+    fn from(e: qhm_formats::FormatError) -> Self {
+        use qhm_formats::FormatError as F;
+        match e {
+            F::Io { path, source } => RenderError::Io { path, source },
+            F::Exr { path, message } | F::Invalid { path, message } | F::Toml { path, message } => {
+                RenderError::Exr { path, message }
+            }
+        }
+    }
+}

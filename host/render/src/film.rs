@@ -67,15 +67,13 @@ impl Image {
     }
 
     pub fn write_exr(&self, path: &Path) -> Result<(), RenderError> {
-        let w = self.width as usize;
-        exr::prelude::write_rgb_file(path, w, self.height as usize, |x, y| {
-            let p = self.pixels[y * w + x];
-            (p[0], p[1], p[2])
-        })
-        .map_err(|e| RenderError::Exr {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })
+        let (w, h) = (self.width as usize, self.height as usize);
+        Ok(qhm_formats::exr::write_rgb_pixels(
+            path,
+            w,
+            h,
+            &self.pixels,
+        )?)
     }
 
     /// The automatic exposure k = 2 / L99 (1 for a black image).

@@ -113,26 +113,14 @@ impl EnvMap {
 
     /// Reads an EXR lat-long map.
     pub fn load(path: &Path, rotation: f32, scale: f32) -> Result<EnvMap, RenderError> {
-        use exr::prelude::read_first_rgba_layer_from_file;
-        let exr_err = |e: exr::error::Error| RenderError::Exr {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        };
-        let img = read_first_rgba_layer_from_file(
-            path,
-            |res, _| (res.width(), vec![Vec3::ZERO; res.width() * res.height()]),
-            |px: &mut (usize, Vec<Vec3>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-                let w = px.0;
-                px.1[pos.y() * w + pos.x()] = Vec3::new(r, g, b);
-            },
-        )
-        .map_err(exr_err)?;
-        let (w, texels) = img.layer_data.channel_data.pixels;
-        let h = texels.len() / w.max(1);
+        let img = qhm_formats::exr::read_rgb(path)?;
         EnvMap::new(
-            w,
-            h,
-            texels.into_iter().map(|t| t * scale).collect(),
+            img.width,
+            img.height,
+            img.data
+                .into_iter()
+                .map(|t| Vec3::from(t) * scale)
+                .collect(),
             rotation,
         )
     }

@@ -308,12 +308,9 @@ fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
 }
 
 fn write_exr(path: &Path, img: &sim_light::RadianceImage) -> Result<()> {
-    let w = img.width as usize;
-    exr::prelude::write_rgb_file(path, w, img.height as usize, |x, y| {
-        let p = img.data[y * w + x];
-        (p[0], p[1], p[2])
-    })
-    .with_context(|| format!("writing {}", path.display()))
+    let (w, h) = (img.width as usize, img.height as usize);
+    qhm_formats::exr::write_rgb_pixels(path, w, h, &img.data)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn entrance(e: EntranceArgs) -> Result<ExitCode> {

@@ -114,11 +114,8 @@ pub fn object_scene(scene: &Scene, sample: sim_light::SampleDesc) -> ObjectScene
 }
 
 fn write_exr(path: &Path, w: u32, h: u32, px: &[[f32; 3]]) -> Result<()> {
-    exr::prelude::write_rgb_file(path, w as usize, h as usize, |x, y| {
-        let p = px[y * w as usize + x];
-        (p[0], p[1], p[2])
-    })
-    .with_context(|| format!("writing {}", path.display()))
+    qhm_formats::exr::write_rgb_pixels(path, w as usize, h as usize, px)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
