@@ -58,6 +58,14 @@ pub struct Manifest {
     pub seed: u64,
     /// sha256 of the plan's steps, hex: resume refuses a different plan.
     pub plan_sha256: String,
+    /// The calibration file the capture was taken with (`qhm capture run
+    /// --calibration`): relative to the (whole) capture directory where the
+    /// two share a parent, else absolute. `qhm rectify` uses it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<String>,
+    /// sha256 of that file as it was when the capture started, hex.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_sha256: Option<String>,
     /// `[K, N]` in a share's own directory (see the module docs); absent in a
     /// whole capture.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -74,6 +82,8 @@ impl Manifest {
             sample: sample.into(),
             seed,
             plan_sha256: plan_sha256(plan),
+            calibration: None,
+            calibration_sha256: None,
             shard: None,
             plan: plan.config.clone(),
         }
@@ -120,6 +130,36 @@ impl Manifest {
         )
     }
 
+    /// Records `file` as the calibration the capture in `root` (the whole
+    /// capture's directory, made or not) is taken with: its path and sha256.
+    pub fn record_calibration(&mut self, root: &Path, file: &Path) -> Result<(), DirError> {
+        let data = fs::read(file).map_err(io_err(file))?;
+        let file_abs = fs::canonicalize(file).map_err(io_err(file))?;
+        let root_abs = absolute_dir(root).map_err(io_err(root))?;
+        self.calibration = Some(
+            relative_path(&root_abs, &file_abs)
+                .to_string_lossy()
+                .into_owned(),
+        );
+        self.calibration_sha256 = Some(sha256_hex(&data));
+        Ok(())
+    }
+
+    /// The recorded calibration file of the capture (or share) in `root`,
+    /// resolved, with its recorded sha256.
+    pub fn calibration_file(&self, root: &Path) -> Option<(PathBuf, &str)> {
+        let file = self.calibration.as_deref()?;
+        // A share's directory is CAPTURE_DIR/shards/K-of-N; the path is the whole capture's.
+        let base = match self.shard {
+            Some(_) => root.join("../.."),
+            None => root.to_path_buf(),
+        };
+        Some((
+            base.join(file),
+            self.calibration_sha256.as_deref().unwrap_or(""),
+        ))
+    }
+
     /// Whether this capture (or share) takes plan step `index`.
     pub fn takes(&self, index: u32) -> bool {
         self.shard.is_none_or(|[k, n]| index % n == k - 1)
@@ -129,6 +169,45 @@ impl Manifest {
 /// Where share `k` of `n` of the capture in `root` is written.
 pub fn shard_dir(root: &Path, k: u32, n: u32) -> PathBuf {
     root.join(SHARDS).join(format!("{k}-of-{n}"))
+}
+
+/// `dir` as an absolute path with symbolic links resolved as far as it
+/// exists (a directory not made yet keeps its last components).
+fn absolute_dir(dir: &Path) -> io::Result<PathBuf> {
+    let abs = std::path::absolute(dir)?;
+    let mut missing = Vec::new();
+    let mut at = abs.as_path();
+    loop {
+        match fs::canonicalize(at) {
+            Ok(mut real) => {
+                real.extend(missing.iter().rev());
+                return Ok(real);
+            }
+            Err(_) => match (at.parent(), at.file_name()) {
+                (Some(parent), Some(name)) => {
+                    missing.push(name.to_os_string());
+                    at = parent;
+                }
+                _ => return Ok(abs),
+            },
+        }
+    }
+}
+
+/// `to` relative to the directory `from` (both absolute) when they share
+/// more than the root, else `to` itself.
+fn relative_path(from: &Path, to: &Path) -> PathBuf {
+    let (a, b): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    if common <= 1 {
+        return to.to_path_buf();
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..a.len() {
+        rel.push("..");
+    }
+    rel.extend(&b[common..]);
+    rel
 }
 
 /// `w` quoted for a POSIX shell if it needs it.
@@ -1015,6 +1094,50 @@ mod tests {
         assert_eq!(d.steps_done(), 2);
         assert_eq!(d.frame_count(), n);
         assert!(!d.is_complete());
+    }
+
+    #[test]
+    fn the_calibration_is_recorded_beside_the_capture() {
+        let (tmp, plan, mut m) = setup();
+        let root = tmp.path().join("run/capture");
+        let cal = tmp.path().join("run/calibration.toml");
+        fs::create_dir_all(tmp.path().join("run")).unwrap();
+        assert!(m.record_calibration(&root, &cal).is_err(), "a missing file");
+        fs::write(&cal, "format = \"qhm-calibration\"\n").unwrap();
+        m.record_calibration(&root, &cal).unwrap();
+        assert_eq!(m.calibration.as_deref(), Some("../calibration.toml"));
+        CaptureDir::create(&root, m.clone()).unwrap();
+        let back = Manifest::read(&root).unwrap();
+        assert_eq!(back, m);
+        let (file, sha) = back.calibration_file(&root).unwrap();
+        assert_eq!(fs::read(&file).unwrap(), fs::read(&cal).unwrap());
+        assert_eq!(sha, sha256_hex(&fs::read(&cal).unwrap()));
+        // A share resolves it from the whole capture's directory.
+        let share = Manifest {
+            shard: Some([1, 2]),
+            ..back.clone()
+        };
+        fs::create_dir_all(shard_dir(&root, 1, 2)).unwrap();
+        let (file, _) = share.calibration_file(&shard_dir(&root, 1, 2)).unwrap();
+        assert!(fs::read(&file).is_ok(), "{}", file.display());
+        // A capture.toml written before the record reads, with none.
+        let old = Manifest::new("sim", "marble", 7, &plan);
+        let text = toml::to_string(&old).unwrap();
+        assert!(!text.contains("calibration"));
+        assert_eq!(
+            toml::from_str::<Manifest>(&text)
+                .unwrap()
+                .calibration_file(&root),
+            None
+        );
+        assert_eq!(
+            relative_path(Path::new("/a/b"), Path::new("/c/d.toml")),
+            Path::new("/c/d.toml")
+        );
+        assert_eq!(
+            relative_path(Path::new("/a/b/c"), Path::new("/a/b/c/d.toml")),
+            Path::new("d.toml")
+        );
     }
 
     #[test]
