@@ -24,8 +24,8 @@ use qhm_model::fit::{FitOptions, fit_capture_with_progress};
 use qhm_model::{DipoleParams, MaterialModel};
 use qhm_progress::Bar;
 use qhm_render::light::{EnvMap, Light};
-use qhm_render::render::{RenderSettings, render_scene_stats};
 use qhm_render::scene::Scene;
+use qhm_render::{RenderSettings, render_scene_stats};
 use serde::Serialize;
 use sim_devices::{SimRig, SimRigConfig};
 

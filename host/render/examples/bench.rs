@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 
 use qhm_render::material::{Homogeneous, preset};
-use qhm_render::render::{measure_hierarchy, prepare};
+use qhm_render::prepare::{measure_hierarchy, prepare};
 use qhm_render::{RenderSettings, RenderStats, Scene, render_scene_stats};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -8,7 +8,8 @@ use std::f32::consts::{PI, TAU};
 use glam::{Vec2, Vec3};
 
 use crate::error::{MeshError, RenderError};
-use crate::mesh::{Mesh, MeshInput};
+use crate::mesh::Mesh;
+use crate::mesh_input::MeshInput;
 use crate::teapot_data::{PATCHES, POINTS};
 
 /// Names accepted by [`builtin_mesh`].

@@ -6,12 +6,17 @@
 //!   [`EnvMap`]; [`SceneFile`] reads the scene TOML.
 //! - [`Material`]: the four parts of eq. 4 as the renderer sees them,
 //!   implemented by `qhm_model::MaterialModel` and by [`Homogeneous`].
-//! - [`render_scene`]: pass 1 ([`points`]: Poisson-disk surface samples and
-//!   their f-attenuated irradiance), the Jensen-Buhler octree ([`octree`]),
-//!   texture synthesis ([`synth`]), and per-pixel shading ([`render`]).
+//! - [`render_scene`] with [`RenderSettings`] ([`settings`]): pass 1
+//!   ([`prepare`]: Poisson-disk surface samples and their f-attenuated
+//!   irradiance from [`points`], the Jensen-Buhler octree from [`octree`],
+//!   texture synthesis from [`synth`]), then per-pixel shading ([`render`]),
+//!   with the smooth boundary's entry and exit shapes ([`boundary`]).
+//! - Mesh files: [`obj`] and [`ply`] read a [`mesh_input::MeshInput`], which
+//!   [`Mesh::build`] validates.
 //! - [`Image`]: EXR and tone-mapped PNG output; [`export`]: pbrt-v4 and
 //!   Mitsuba 3 snippets of the homogeneous part.
 
+pub mod boundary;
 pub mod builtin;
 pub mod bvh;
 pub mod camera;
@@ -22,11 +27,15 @@ pub mod film;
 pub mod light;
 pub mod material;
 pub mod mesh;
+pub mod mesh_input;
+pub mod obj;
 pub mod octree;
 pub mod ply;
 pub mod points;
+pub mod prepare;
 pub mod render;
 pub mod scene;
+pub mod settings;
 pub mod synth;
 mod teapot_data;
 
@@ -36,7 +45,6 @@ pub use film::Image;
 pub use light::{EnvMap, Light};
 pub use material::{Homogeneous, Material};
 pub use mesh::Mesh;
-pub use render::{
-    Mode, RenderSettings, RenderStats, render_scene, render_scene_camera, render_scene_stats,
-};
+pub use render::{render_scene, render_scene_camera, render_scene_stats};
 pub use scene::{Scene, SceneFile};
+pub use settings::{Mode, RenderSettings, RenderStats};

@@ -1,4 +1,4 @@
-//! Triangle meshes: loading (OBJ via tobj, PLY via [`crate::ply`]),
+//! Triangle meshes: loading (OBJ via [`crate::obj`], PLY via [`crate::ply`]),
 //! validation (finite values, indices, manifold edges, degenerate faces),
 //! and the attributes the renderer needs: per-vertex normals (generated from
 //! area-weighted face normals when absent) and per-corner surface texture
@@ -10,6 +10,7 @@ use std::path::Path;
 use glam::{Vec2, Vec3};
 
 use crate::error::MeshError;
+use crate::mesh_input::MeshInput;
 
 /// A validated triangle mesh in millimetres.
 #[derive(Clone, Debug)]
@@ -24,27 +25,6 @@ pub struct Mesh {
     pub tangents: Vec<Vec3>,
     /// Faces dropped at load because their area was zero.
     pub dropped_degenerate: usize,
-}
-
-/// Raw mesh data as a loader reads it, before validation.
-#[derive(Clone, Debug, Default)]
-pub struct MeshInput {
-    pub positions: Vec<[f32; 3]>,
-    pub normals: Option<Vec<[f32; 3]>>,
-    /// Per-vertex texture coordinates in file units (usually 0..1).
-    pub uvs: Option<Vec<[f32; 2]>>,
-    pub triangles: Vec<[u32; 3]>,
-}
-
-impl MeshInput {
-    /// Multiplies all positions by `s` (file units -> mm).
-    pub fn scale(&mut self, s: f32) {
-        for p in &mut self.positions {
-            for c in p.iter_mut() {
-                *c *= s;
-            }
-        }
-    }
 }
 
 /// The smallest and largest object a mesh may be, across its bounding box,
@@ -118,7 +98,7 @@ impl Mesh {
             });
         }
         match ext.as_deref() {
-            Some("obj") => load_obj(path),
+            Some("obj") => crate::obj::read(path),
             Some("ply") => {
                 let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
                     path: path.to_path_buf(),
@@ -338,56 +318,6 @@ pub fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
         |(lo, hi), p| (lo.min(*p), hi.max(*p)),
     )
-}
-
-fn load_obj(path: &Path) -> Result<MeshInput, MeshError> {
-    let opts = tobj::LoadOptions {
-        single_index: true,
-        triangulate: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| MeshError::Obj {
-        path: path.to_path_buf(),
-        message: match e {
-            // tobj's own words for a file that is not OBJ text.
-            tobj::LoadError::ReadError => "not readable as OBJ text".into(),
-            e => e.to_string(),
-        },
-    })?;
-    let mut out = MeshInput::default();
-    let all_normals = models
-        .iter()
-        .all(|m| m.mesh.normals.len() == m.mesh.positions.len());
-    let all_uvs = models
-        .iter()
-        .all(|m| m.mesh.texcoords.len() / 2 == m.mesh.positions.len() / 3);
-    let mut normals = Vec::new();
-    let mut uvs = Vec::new();
-    for m in &models {
-        let base = out.positions.len() as u32;
-        let mesh = &m.mesh;
-        out.positions
-            .extend(mesh.positions.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
-        if all_normals {
-            normals.extend(mesh.normals.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
-        }
-        if all_uvs {
-            uvs.extend(mesh.texcoords.chunks_exact(2).map(|p| [p[0], p[1]]));
-        }
-        out.triangles.extend(
-            mesh.indices
-                .chunks_exact(3)
-                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
-        );
-    }
-    if all_normals && !normals.is_empty() {
-        out.normals = Some(normals);
-    }
-    if all_uvs && !uvs.is_empty() {
-        out.uvs = Some(uvs);
-    }
-    Ok(out)
 }
 
 /// Maps each vertex to the id of the first vertex within `tol` (grid hash).

@@ -4,7 +4,7 @@
 //! fan-triangulated). Other elements and properties are skipped.
 
 use crate::error::MeshError;
-use crate::mesh::MeshInput;
+use crate::mesh_input::MeshInput;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Scalar {

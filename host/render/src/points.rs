@@ -18,10 +18,10 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
+use crate::boundary::EntryShape;
 use crate::bvh::Ray;
 use crate::material::Material;
 use crate::mesh::Mesh;
-use crate::render::EntryShape;
 use crate::scene::Scene;
 
 /// Surface sample points with their area and irradiance.

@@ -58,7 +58,7 @@ use crate::camera::Camera;
 use crate::error::RenderError;
 use crate::light::{EnvMap, Light};
 use crate::mesh::Mesh;
-use crate::render::{Mode, RenderSettings};
+use crate::settings::{Mode, RenderSettings};
 
 /// Everything that is rendered.
 pub struct Scene {

@@ -6,11 +6,12 @@
 use glam::Vec3;
 use qhm_model::DipoleParams;
 use qhm_model::profile::ProfileModel;
+use qhm_render::Mode;
 use qhm_render::builtin::slab;
 use qhm_render::material::{Homogeneous, Material, preset};
 use qhm_render::octree::{DipoleTree, RdTable};
 use qhm_render::points::{Entrance, compute_irradiance, poisson_disk};
-use qhm_render::render::{Mode, measure_hierarchy, prepare, relative_rms};
+use qhm_render::prepare::{measure_hierarchy, prepare, relative_rms};
 use qhm_render::{Camera, EnvMap, Light, RenderSettings, RenderStats, Scene, render_scene};
 
 #[test]
@@ -31,7 +32,7 @@ fn octree_matches_brute_force_within_one_percent() {
     let tree = DipoleTree::new(&samples);
     let radius = (samples.area[0] / std::f32::consts::PI).sqrt();
     let rd = RdTable::new(&material.dipole(), radius)
-        .with_near_field(qhm_render::render::NEAR_FIELD_SPREAD * radius)
+        .with_near_field(qhm_render::settings::NEAR_FIELD_SPREAD * radius)
         .with_geometry(&material.dipole());
     // Query at other surface points (not the samples themselves).
     let probe = poisson_disk(&scene.mesh, 600, 99);

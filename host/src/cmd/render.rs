@@ -11,7 +11,7 @@ use clap::Args;
 use host::output::check_file_output;
 use qhm_model::MaterialModel;
 use qhm_render::material::{PRESET_NAMES, preset};
-use qhm_render::render::{measure_hierarchy, prepare};
+use qhm_render::prepare::{measure_hierarchy, prepare};
 use qhm_render::{Mesh, Mode, RenderSettings, RenderStats, Scene, SceneFile, render_scene_stats};
 
 #[derive(Args, Debug)]
@@ -182,7 +182,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
     settings.validate()?;
     // Before anything is allocated: a render larger than the free memory
     // is refused, and a large one says what it will take.
-    let need = settings.check_memory(qhm_render::render::available_memory())?;
+    let need = settings.check_memory(qhm_render::settings::available_memory())?;
     if !args.quiet && (need >= 1 << 30 || args.bench) {
         eprintln!(
             "qhm render: {} x {} pixels, {} spp, {} surface samples: about {} of memory",
@@ -190,7 +190,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
             settings.height,
             settings.spp,
             settings.surface_samples,
-            qhm_render::render::human_bytes(need)
+            qhm_render::settings::human_bytes(need)
         );
     }
     if let Some(e) = args.exposure

@@ -17,7 +17,8 @@ use std::time::Instant;
 use anyhow::Context;
 use qhm_model::MaterialModel;
 use qhm_render::builtin::BUILTIN_NAMES;
-use qhm_render::render::{Prepared, prepare, render_prepared};
+use qhm_render::prepare::{Prepared, prepare};
+use qhm_render::render::render_prepared;
 use qhm_render::{Image, Mesh, Mode, RenderSettings, RenderStats, Scene, SceneFile};
 
 use super::request::{Framing, SceneToml, View};
