@@ -239,10 +239,9 @@ impl Ctx<'_> {
                     match self.air_ray(cells, o, d, at == At::Pore, f32::INFINITY) {
                         AirEnd::Hit(b) => (b, false),
                         AirEnd::Free { crossed } => {
-                            // (a primary ray through open pores sees what is behind the object)
-                            if at == At::Pore {
-                                st.lost += 1;
-                            } else if let Some(env) = &self.scene.env
+                            // left the object (from a pore: through open pores); a
+                            // primary ray through open pores sees what is behind it
+                            if let Some(env) = &self.scene.env
                                 && (!primary || crossed || self.scene.env_visible)
                                 && (self.unscattered_env || events > 0 || !entered)
                             {
