@@ -324,7 +324,9 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     let (frames, monte_carlo) = stages.run("capture", || {
         let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
         rt.block_on(async {
-            let manifest = Manifest::new("sim", &opts.sample, opts.seed, &plan);
+            let mut manifest = Manifest::new("sim", &opts.sample, opts.seed, &plan);
+            // As `qhm capture run --calibration` does, for `qhm rectify`.
+            manifest.record_calibration(&capture, &cal_path)?;
             let mut dir = CaptureDir::create(&capture, manifest)?;
             let run_opts = RunOptions {
                 time_scale: rig_cfg.speed,

@@ -1,11 +1,15 @@
 //! Glue between a capture directory (qhm-acquire's plan and frames) and the
 //! rectification pipeline (qhm-imaging): which frames form one exposure
 //! bracket of one shot, and the rectification settings a plan implies.
-//! Used by `qhm rectify` and `qhm demo`.
+//! Used by `qhm rectify` and `qhm demo`. Also where a capture's
+//! calibration file is: the one capture.toml records, or beside the capture.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use anyhow::{Context, bail};
+use qhm_acquire::Manifest;
+use qhm_acquire::dir::sha256_hex;
 use qhm_acquire::plan::{Light, Plan, Step};
 use qhm_imaging::Calibration;
 use qhm_imaging::hdr::MergeOptions;
@@ -131,5 +135,78 @@ pub fn calibrated_shots(shots: Vec<Shot>, cal: &Calibration) -> (Vec<Shot>, Vec<
     (
         shots.into_iter().filter(|s| ok(s.camera)).collect(),
         skipped,
+    )
+}
+
+/// The calibration file's name where qhm looks for it beside a capture
+/// directory: `DIR/calibration.toml` next to `DIR/capture/` (the layout of
+/// `qhm demo` and of the walkthrough).
+pub const CALIBRATION_FILE: &str = "calibration.toml";
+
+/// `capture_dir/../calibration.toml`.
+pub fn calibration_beside(capture_dir: &Path) -> PathBuf {
+    capture_dir.join("..").join(CALIBRATION_FILE)
+}
+
+/// The calibration `qhm capture run` records for a capture into `out`: the
+/// one `given`, else the one beside `out` if there is one. Refused if it
+/// does not load, before any frame is taken.
+pub fn capture_calibration(out: &Path, given: Option<&Path>) -> anyhow::Result<Option<PathBuf>> {
+    let beside = calibration_beside(out);
+    let file = match given {
+        Some(f) => f.to_path_buf(),
+        None if beside.is_file() => beside,
+        None => return Ok(None),
+    };
+    Calibration::load(&file).with_context(|| {
+        format!(
+            "the calibration {} does not load; pass --calibration FILE",
+            file.display()
+        )
+    })?;
+    Ok(Some(file))
+}
+
+/// The calibration file `qhm rectify` uses for the capture in `root`, in
+/// this order: the one `given`; the one its capture.toml records (which
+/// must be unchanged since); `root/calibration.toml`; the one beside `root`.
+pub fn find_calibration(
+    root: &Path,
+    manifest: &Manifest,
+    given: Option<&Path>,
+) -> anyhow::Result<PathBuf> {
+    if let Some(f) = given {
+        return Ok(f.to_path_buf());
+    }
+    if let Some((file, sha)) = manifest.calibration_file(root) {
+        let data = std::fs::read(&file).with_context(|| {
+            format!(
+                "{} was taken with the calibration {}, which cannot be read; pass --calibration FILE",
+                root.display(),
+                file.display()
+            )
+        })?;
+        if sha256_hex(&data) != sha {
+            bail!(
+                "the calibration {} has changed since {} was taken with it; pass --calibration {} to rectify with it as it is now",
+                file.display(),
+                root.display(),
+                file.display()
+            );
+        }
+        return Ok(file);
+    }
+    let inside = root.join(CALIBRATION_FILE);
+    let beside = calibration_beside(root);
+    for f in [inside, beside] {
+        if f.is_file() {
+            return Ok(f);
+        }
+    }
+    bail!(
+        "{} names no calibration and there is none at {} or {}; pass --calibration FILE (from `qhm calibrate all`)",
+        root.display(),
+        root.join(CALIBRATION_FILE).display(),
+        calibration_beside(root).display()
     )
 }

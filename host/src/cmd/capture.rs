@@ -72,6 +72,11 @@ pub struct RunArgs {
     /// Capture directory.
     #[arg(short = 'o', long = "out")]
     pub out: PathBuf,
+    /// The calibration file of the rig (from `qhm calibrate`), recorded in
+    /// capture.toml for `qhm rectify` [default: OUT/../calibration.toml if
+    /// there].
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
     /// Continue the capture in OUT (after Ctrl-C, a crash, a disconnect).
     #[arg(long)]
     pub resume: bool,
@@ -307,6 +312,11 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         check_cameras_given(&plan, &a.cameras)?;
     }
     let mut manifest = Manifest::new(&rig_name, &a.sample, a.seed, &plan);
+    if let Some(cal) = host::pipeline::capture_calibration(&a.out, a.calibration.as_deref())? {
+        manifest
+            .record_calibration(&a.out, &cal)
+            .with_context(|| format!("recording the calibration {}", cal.display()))?;
+    }
     // A share is a capture directory of its own inside OUT/shards/.
     let out = match a.shard {
         Some(s) => {

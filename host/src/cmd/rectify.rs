@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use host::pipeline::{StripeWindow, calibrated_shots, rectify_options, shots};
+use host::pipeline::{StripeWindow, calibrated_shots, find_calibration, rectify_options, shots};
 use qhm_acquire::dir::sha256_hex;
 use qhm_acquire::{CaptureDir, Manifest};
 use qhm_imaging::Calibration;
@@ -22,7 +22,9 @@ use qhm_imaging::shards::{self, SHARDS_DIR, Shard, ShardSource};
 pub struct RectifyArgs {
     /// Capture directory written by `qhm capture run`.
     pub capture_dir: PathBuf,
-    /// Calibration file from `qhm calibrate` [default: CAPTURE_DIR/calibration.toml].
+    /// Calibration file from `qhm calibrate` [default: the one capture.toml
+    /// records, else CAPTURE_DIR/calibration.toml, else
+    /// CAPTURE_DIR/../calibration.toml].
     #[arg(long)]
     pub calibration: Option<PathBuf>,
     /// Width of the rectified area on the sample, mm (texel = width / the plan's rectified size).
@@ -70,10 +72,7 @@ pub fn run(args: RectifyArgs) -> anyhow::Result<ExitCode> {
     }
     let manifest: &Manifest = dir.manifest();
     let plan = dir.plan()?;
-    let cal_path = args
-        .calibration
-        .clone()
-        .unwrap_or_else(|| root.join("calibration.toml"));
+    let cal_path = find_calibration(root, manifest, args.calibration.as_deref())?;
     let cal = Calibration::load(&cal_path)
         .with_context(|| "run `qhm calibrate all` first, or pass --calibration")?;
     let window = StripeWindow {
