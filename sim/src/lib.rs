@@ -74,6 +74,14 @@ pub struct SimConfig {
     pub link: LinkConfig,
     /// Virtual seconds per wall second (1.0 = real time).
     pub speed: f64,
+    /// Lockstep with the host: the rig's clock never runs more than this
+    /// many virtual µs past the last byte the host wrote. A host that is
+    /// late (descheduled on a loaded machine, its heartbeat due) then holds
+    /// the rig back instead of missing its heartbeat; below the MCU's
+    /// heartbeat timeout it never misses one. A host that stops writing
+    /// stops the rig, so `None` (free-running) is what tests of a lost
+    /// heartbeat use. See [`link`].
+    pub host_lead_us: Option<u64>,
 }
 
 impl Default for SimConfig {
@@ -82,6 +90,7 @@ impl Default for SimConfig {
             rig: RigConfig::default(),
             link: LinkConfig::default(),
             speed: 1.0,
+            host_lead_us: None,
         }
     }
 }
@@ -95,6 +104,7 @@ impl SimConfig {
             rig: RigConfig::seeded(seed),
             link,
             speed: 1.0,
+            host_lead_us: None,
         }
     }
 
@@ -103,6 +113,14 @@ impl SimConfig {
             return Err(SimError::BadConfig(format!(
                 "speed = {} must be in (0, 1000]",
                 self.speed
+            )));
+        }
+        if let Some(lead) = self.host_lead_us
+            && !(1..firmware::controller::HEARTBEAT_TIMEOUT_US).contains(&lead)
+        {
+            return Err(SimError::BadConfig(format!(
+                "host_lead_us = {lead} must be in 1..{} (below the MCU's heartbeat timeout)",
+                firmware::controller::HEARTBEAT_TIMEOUT_US
             )));
         }
         self.rig.validate()?;

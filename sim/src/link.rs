@@ -7,6 +7,16 @@
 //! faster (the host must then heartbeat 20 times as often in wall time: the
 //! MCU's 250 ms heartbeat timeout is virtual time).
 //!
+//! Two things hold the clock back, so that what the rig sees is what a
+//! real rig next to a real host would: a stall of the emulator itself
+//! ([`MAX_CATCH_UP_WALL`], [`MAX_CATCH_UP_VIRTUAL_US`]), and, in lockstep
+//! (`SimConfig::host_lead_us`), a host that has not written for longer than
+//! its lead: a simulated host PC is never descheduled for a quarter second,
+//! a host process on a loaded 2-core machine running the rig 50 times
+//! faster than real time may be. Motion profiles, dwells and the MCU's own
+//! timeouts are untouched: a move takes the rig time it would on the rig,
+//! only its wall time shrinks.
+//!
 //! [`spawn_in_process`] returns the host's end of a `tokio::io::duplex` pair
 //! (`AsyncRead + AsyncWrite`) and spawns a tokio task that serves the other
 //! end: bytes the host writes go onto the modelled line, bytes the MCU sends
@@ -81,8 +91,12 @@ impl VirtualClock {
 struct Shared {
     port: Mutex<SimPort>,
     clock: VirtualClock,
-    /// Virtual µs the clock was held back over emulator stalls.
+    /// Virtual µs the clock was held back (emulator stalls, a late host).
     paused_us: AtomicU64,
+    /// Lockstep lead (see `SimConfig::host_lead_us`).
+    host_lead_us: Option<u64>,
+    /// Virtual time the host last wrote, µs.
+    host_wrote_us: AtomicU64,
     stop: AtomicBool,
     wake: Notify,
 }
@@ -102,13 +116,15 @@ impl std::fmt::Debug for RigHandle {
 }
 
 impl RigHandle {
-    pub(crate) fn new(port: SimPort, speed: f64) -> Self {
+    pub(crate) fn new(port: SimPort, speed: f64, host_lead_us: Option<u64>) -> Self {
         let clock = VirtualClock::new(port.now_us(), speed);
         Self {
             shared: Arc::new(Shared {
+                host_wrote_us: AtomicU64::new(port.now_us()),
                 port: Mutex::new(port),
                 clock,
                 paused_us: AtomicU64::new(0),
+                host_lead_us,
                 stop: AtomicBool::new(false),
                 wake: Notify::new(),
             }),
@@ -120,17 +136,33 @@ impl RigHandle {
         // A panic while locked leaves a consistent SimPort (every method
         // finishes its state change before it can panic), so go on.
         let mut port = self.shared.port.lock().unwrap_or_else(|e| e.into_inner());
-        let mut now = self.now_us();
+        let at = port.now_us();
+        let wall = self.wall_us();
+        let mut target = wall;
         let max_step = ((MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64)
             .min(MAX_CATCH_UP_VIRTUAL_US);
-        let behind = now.saturating_sub(port.now_us());
-        if behind > max_step {
-            let skipped = behind - max_step;
-            self.shared.paused_us.fetch_add(skipped, Ordering::SeqCst);
-            now -= skipped;
+        target = target.min(at.saturating_add(max_step));
+        if let Some(lead) = self.shared.host_lead_us {
+            let wrote = self.shared.host_wrote_us.load(Ordering::SeqCst);
+            target = target.min(wrote.saturating_add(lead));
         }
-        port.advance_to(now);
+        let target = target.max(at);
+        if wall > target {
+            // Held back: the clock resumes from here, not from the wall.
+            self.shared
+                .paused_us
+                .fetch_add(wall - target, Ordering::SeqCst);
+        }
+        port.advance_to(target);
         port
+    }
+
+    /// Wall time times speed, less the time held back so far, µs.
+    fn wall_us(&self) -> u64 {
+        self.shared
+            .clock
+            .now_us()
+            .saturating_sub(self.shared.paused_us.load(Ordering::SeqCst))
     }
 
     /// Run `f` on the port at the current virtual time (tests: inspect the
@@ -180,12 +212,11 @@ impl RigHandle {
         self.with(|p| p.disconnect());
     }
 
-    /// Virtual time now, µs (wall time times speed, less emulator stalls).
+    /// Virtual time now, µs: the rig caught up with the clock (wall time
+    /// times speed, less the time it was held back). Never decreases, and
+    /// every later trigger edge is at or after it.
     pub fn now_us(&self) -> u64 {
-        self.shared
-            .clock
-            .now_us()
-            .saturating_sub(self.shared.paused_us.load(Ordering::SeqCst))
+        self.with(|p| p.now_us())
     }
 
     pub fn speed(&self) -> f64 {
@@ -209,10 +240,11 @@ impl RigHandle {
         let out = port.host_read();
         let next = port.next_event_us();
         let closed = port.is_disconnected();
+        let now = port.now_us();
         drop(port);
         let wait = next
             .map(|t| {
-                let ahead = t.saturating_sub(self.now_us()) as f64 * 1e-6 / self.speed();
+                let ahead = t.saturating_sub(now) as f64 * 1e-6 / self.speed();
                 Duration::try_from_secs_f64(ahead).unwrap_or(Duration::MAX)
             })
             .unwrap_or(MAX_IDLE_WALL)
@@ -222,7 +254,11 @@ impl RigHandle {
 
     /// The host wrote these bytes now.
     pub(crate) fn host_wrote(&self, bytes: &[u8]) {
-        self.lock().host_write(bytes);
+        let mut port = self.lock();
+        port.host_write(bytes);
+        self.shared
+            .host_wrote_us
+            .store(port.now_us(), Ordering::SeqCst);
     }
 
     pub(crate) async fn woken(&self) {
@@ -239,7 +275,7 @@ const DUPLEX_CAPACITY: usize = 64 * 1024;
 pub fn spawn_in_process(cfg: &SimConfig) -> Result<(DuplexStream, RigHandle), SimError> {
     cfg.validate()?;
     let port = SimPort::new(cfg.rig.clone(), cfg.link)?;
-    let handle = RigHandle::new(port, cfg.speed);
+    let handle = RigHandle::new(port, cfg.speed, cfg.host_lead_us);
     let (host_end, sim_end) = tokio::io::duplex(DUPLEX_CAPACITY);
     let runtime = tokio::runtime::Handle::try_current().map_err(|_| SimError::NoRuntime)?;
     runtime.spawn(serve_stream(sim_end, handle.clone()));
@@ -269,4 +305,63 @@ async fn serve_stream(stream: DuplexStream, handle: RigHandle) {
     }
     // Dropping both halves closes the host's end: it reads EOF.
     let _ = wr.shutdown().await;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(speed: f64, host_lead_us: Option<u64>) -> SimConfig {
+        SimConfig {
+            speed,
+            host_lead_us,
+            ..SimConfig::seeded(9)
+        }
+    }
+
+    /// Wall time `wall` with the host writing one byte every `every` (never if None).
+    async fn run_for(cfg: &SimConfig, wall: Duration, every: Option<Duration>) -> u64 {
+        let (mut host, rig) = spawn_in_process(cfg).unwrap();
+        let end = tokio::time::Instant::now() + wall;
+        while tokio::time::Instant::now() < end {
+            match every {
+                Some(d) => {
+                    host.write_all(&[0]).await.unwrap();
+                    tokio::time::sleep(d).await;
+                }
+                None => tokio::time::sleep(wall).await,
+            }
+        }
+        let t = rig.now_us();
+        rig.shutdown();
+        t
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn lockstep_holds_the_rig_at_its_lead_past_a_silent_host() {
+        let wall = Duration::from_millis(300);
+        // Free: 300 ms at 50x is seconds of rig time.
+        let free = run_for(&config(50.0, None), wall, None).await;
+        assert!(free > 2_000_000, "free clock at {free} µs");
+        // Lockstep: the clock waits 100 ms past the last byte (the start).
+        let held = run_for(&config(50.0, Some(100_000)), wall, None).await;
+        assert!(held <= 100_000, "held clock at {held} µs");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn lockstep_runs_while_the_host_writes() {
+        let wall = Duration::from_millis(300);
+        let every = Some(Duration::from_millis(2));
+        let t = run_for(&config(50.0, Some(100_000)), wall, every).await;
+        assert!(t > 2_000_000, "clock at {t} µs after 300 ms of a live host");
+    }
+
+    #[test]
+    fn a_lead_at_or_past_the_heartbeat_timeout_is_refused() {
+        let lead = firmware::controller::HEARTBEAT_TIMEOUT_US;
+        let err = config(1.0, Some(lead)).validate().unwrap_err();
+        assert!(err.to_string().contains("host_lead_us"), "{err}");
+        assert!(config(1.0, Some(lead - 1)).validate().is_ok());
+        assert!(config(1.0, Some(0)).validate().is_err());
+    }
 }

@@ -73,7 +73,7 @@ impl Drop for PtyServer {
 pub fn serve_pty(cfg: &SimConfig) -> Result<PtyServer, SimError> {
     cfg.validate()?;
     let port = SimPort::new(cfg.rig.clone(), cfg.link)?;
-    let handle = RigHandle::new(port, cfg.speed);
+    let handle = RigHandle::new(port, cfg.speed, cfg.host_lead_us);
     let pty = openpty(None, None).map_err(|e| SimError::Pty("openpty", e))?;
     let mut t = tcgetattr(pty.slave.as_fd()).map_err(|e| SimError::Pty("tcgetattr", e))?;
     cfmakeraw(&mut t);

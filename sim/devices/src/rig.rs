@@ -57,8 +57,13 @@ pub struct SimRigConfig {
     pub quality: SimQuality,
     /// Seed of everything random in the world (rig errors, boot ids, MC, noise).
     pub seed: u64,
-    /// Virtual seconds per wall second.
+    /// Virtual seconds per wall second, at most (the rig runs in lockstep
+    /// with the host, see `host_lead_us`).
     pub speed: f64,
+    /// The emulated rig's lockstep lead (`sim::SimConfig::host_lead_us`):
+    /// a host late for its heartbeat holds the rig back instead of losing
+    /// it. `None` runs the rig free, as `qhm sim --pty` does.
+    pub host_lead_us: Option<u64>,
     /// Faults on the link (tests).
     pub faults: FaultConfig,
     /// Radiance cache budget, bytes.
@@ -67,18 +72,15 @@ pub struct SimRigConfig {
 
 impl SimRigConfig {
     pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
-        let (mut quality, speed) = match scale {
+        let mut quality = match scale {
             // Binned 4, not the sim's ci 8: at 0.7 mm pixels the stripe's
             // near field blurs into the fitted profile (a' and s'_t biased).
-            Scale::Ci => (
-                SimQuality {
-                    downscale: 4,
-                    ..SimQuality::ci()
-                },
-                4.0,
-            ),
-            Scale::Default => (SimQuality::preview(), 8.0),
-            Scale::Paper => (SimQuality::default_scale(), 2.0),
+            Scale::Ci => SimQuality {
+                downscale: 4,
+                ..SimQuality::ci()
+            },
+            Scale::Default => SimQuality::preview(),
+            Scale::Paper => SimQuality::default_scale(),
         };
         // Pass 1's oblique stripes feed only band fluxes (see
         // `SimQuality::oblique_laser_photons`): a quarter of the photons.
@@ -89,7 +91,8 @@ impl SimRigConfig {
             sample: sample.to_string(),
             quality,
             seed,
-            speed,
+            speed: SIM_SPEED,
+            host_lead_us: Some(HOST_LEAD_US),
             faults: FaultConfig::none(),
             cache_bytes: 1 << 30,
         }
@@ -110,11 +113,22 @@ impl SimRigConfig {
                 lamp_photons: quality.lamp_photons.max(CALIBRATION_LAMP_PHOTONS),
                 ..quality
             },
-            speed: 8.0,
             ..SimRigConfig::new(qhm_acquire::cal_plan::COLOUR_PATTERN, scale, seed)
         }
     }
 }
+
+/// How much faster than real time the built-in rig's clock runs, at most.
+/// The rig moves, dwells and times out in rig time as a real one would;
+/// only the wall time shrinks. The bound is the emulator's own pace: it
+/// polls the Controller at every motor step and input scan.
+pub const SIM_SPEED: f64 = 50.0;
+
+/// The built-in rig's lockstep lead, virtual µs: 40 % of the MCU's 250 ms
+/// heartbeat timeout, so a heartbeat the host sent on time (every 50 ms of
+/// rig time) always reaches the MCU before it would fault, however the
+/// host's process is scheduled.
+pub const HOST_LEAD_US: u64 = 100_000;
 
 /// Lamp photons per channel of a calibration frame, at least: the patch
 /// means of two cameras share photons only where their pixels cover the same
@@ -263,6 +277,7 @@ impl SimRig {
         let world = World::new(desc.clone(), RigTruth::perturbed(cfg.seed), cfg.quality)?;
         let mut sim_cfg = SimConfig::seeded(cfg.seed);
         sim_cfg.speed = cfg.speed;
+        sim_cfg.host_lead_us = cfg.host_lead_us;
         sim_cfg.link.faults = cfg.faults;
         let (stream, rig) = sim::spawn_in_process(&sim_cfg)?;
         let triggers = rig.subscribe_triggers();
