@@ -208,7 +208,7 @@ fn fixtures(root: &Path) {
 
     // Material models: one good, then each broken one way.
     let good =
-        qhm_model::MaterialModel::homogeneous(qhm_render::material::preset("marble").unwrap());
+        qhm_model::MaterialModel::homogeneous(qhm_render::materials::preset("marble").unwrap());
     good.save(&root.join("model_ok")).unwrap();
     let manifest = std::fs::read_to_string(root.join("model_ok/manifest.toml")).unwrap();
     let exr = std::fs::read_dir(root.join("model_ok/fv"))

@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use qhm_render::material::preset;
+use qhm_render::materials::preset;
 
 const PRESETS: [&str; 5] = ["skin1", "marble", "apple", "ketchup", "wholemilk"];
 /// Scene units in mm: a scene in mm and one in metres.

@@ -156,7 +156,7 @@ fn os_errors_give_their_reason_once() {
 
 /// A homogeneous model whose optional fit.json is broken.
 fn model_with_broken_fit_json(dir: &Path) {
-    let m = qhm_model::MaterialModel::homogeneous(qhm_render::material::preset("marble").unwrap());
+    let m = qhm_model::MaterialModel::homogeneous(qhm_render::materials::preset("marble").unwrap());
     m.save(dir).unwrap();
     std::fs::write(dir.join("fit.json"), "{ \"channels\": [ truncated").unwrap();
 }

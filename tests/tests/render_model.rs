@@ -8,8 +8,7 @@ use glam::Vec3;
 use qhm_model::model::{EntranceFunction, ExitingFunction, LocalReflectance, LrfSample, Texture};
 use qhm_model::{DipoleParams, MaterialModel};
 use qhm_render::builtin::slab;
-use qhm_render::material::Homogeneous;
-use qhm_render::{Camera, Light, Mode, RenderSettings, Scene, render_scene};
+use qhm_render::{Camera, Homogeneous, Light, Mode, RenderSettings, Scene, render_scene};
 
 fn dipole() -> DipoleParams {
     DipoleParams {

@@ -20,7 +20,8 @@
 use std::path::PathBuf;
 
 use qhm_model::{DipoleParams, MaterialModel};
-use qhm_render::material::{Material, preset};
+use qhm_render::Material;
+use qhm_render::materials::preset;
 use qhm_render::{Image, RenderSettings, SceneFile, render_scene};
 
 struct Case {

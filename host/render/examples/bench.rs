@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use qhm_render::material::{Homogeneous, preset};
+use qhm_render::materials::{Homogeneous, preset};
 use qhm_render::prepare::{measure_hierarchy, prepare};
 use qhm_render::{RenderSettings, RenderStats, Scene, render_scene_stats};
 

@@ -12,7 +12,8 @@ use std::path::Path;
 
 use qhm_model::DipoleParams;
 use qhm_model::profile::ProfileModel;
-use qhm_render::material::{Homogeneous, Material, preset};
+use qhm_render::Material;
+use qhm_render::materials::{Homogeneous, preset};
 use qhm_render::{RenderSettings, SceneFile, render_scene_stats};
 
 /// A homogeneous material with the exit shape switchable.

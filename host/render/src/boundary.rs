@@ -113,7 +113,7 @@ mod tests {
     #[test]
     fn exit_shape_keeps_the_exitance_and_falls_to_grazing() {
         for name in ["skin1", "marble"] {
-            let mut d = crate::material::preset(name).unwrap();
+            let mut d = crate::materials::preset(name).unwrap();
             for model in [
                 qhm_model::profile::ProfileModel::Dipole,
                 qhm_model::profile::ProfileModel::Transport,
@@ -142,7 +142,7 @@ mod tests {
 
     #[test]
     fn entry_shape_is_one_at_the_normal_and_rises_obliquely() {
-        let d = crate::material::preset("skin1").unwrap();
+        let d = crate::materials::preset("skin1").unwrap();
         let g = EntryShape::new(&d);
         assert!((g.eval(1.0, 1.3) - Vec3::ONE).abs().max_element() < 1e-4);
         let grazing = g.eval(0.05, 1.3);

@@ -131,7 +131,7 @@ mod tests {
 
     #[test]
     fn pbrt_carries_the_coefficients_in_mm_with_the_unit_in_scale() {
-        let d = crate::material::preset("skimmilk").unwrap();
+        let d = crate::materials::preset("skimmilk").unwrap();
         let p = pbrt_snippet("milk", &d, 1000.0);
         for want in [
             "MakeNamedMedium \"milk-medium\"",
@@ -148,7 +148,7 @@ mod tests {
 
     #[test]
     fn mitsuba_rgb_stays_in_unit_range_and_scale_restores_sigma_t() {
-        let d = crate::material::preset("skimmilk").unwrap();
+        let d = crate::materials::preset("skimmilk").unwrap();
         let m = mitsuba_snippet("milk", &d, 1000.0);
         // s'_t = (0.7014, 1.2225, 1.9142) mm^-1: the rgb is s'_t / 1.9142
         // and scale 1914.2 per metre.
@@ -184,7 +184,7 @@ mod tests {
         assert_eq!(export_name("my \"odd\" <model>"), "my__odd___model_");
         assert_eq!(export_name("a--b"), "a-_b");
         assert_eq!(export_name(""), "qhm");
-        let d = crate::material::preset("apple").unwrap();
+        let d = crate::materials::preset("apple").unwrap();
         let m = mitsuba_snippet("x&y", &d, 1.0);
         assert!(m.contains("id=\"x_y-medium\"") && !m.contains('&'));
     }

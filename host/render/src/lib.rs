@@ -5,7 +5,8 @@
 //!   bread) with its [`bvh::Bvh`], a pinhole [`Camera`], [`Light`]s and an
 //!   [`EnvMap`]; [`SceneFile`] reads the scene TOML.
 //! - [`Material`]: the four parts of eq. 4 as the renderer sees them,
-//!   implemented by `qhm_model::MaterialModel` and by [`Homogeneous`].
+//!   implemented ([`materials`]) by `qhm_model::MaterialModel` and by
+//!   [`Homogeneous`].
 //! - [`render_scene`] with [`RenderSettings`] ([`settings`]): pass 1
 //!   ([`prepare`]: Poisson-disk surface samples and their f-attenuated
 //!   irradiance from [`points`], the Jensen-Buhler octree from [`octree`],
@@ -26,6 +27,7 @@ pub mod export;
 pub mod film;
 pub mod light;
 pub mod material;
+pub mod materials;
 pub mod mesh;
 pub mod mesh_input;
 pub mod obj;
@@ -43,7 +45,8 @@ pub use camera::Camera;
 pub use error::{MeshError, RenderError};
 pub use film::Image;
 pub use light::{EnvMap, Light};
-pub use material::{Homogeneous, Material};
+pub use material::Material;
+pub use materials::Homogeneous;
 pub use mesh::Mesh;
 pub use render::{render_scene, render_scene_camera, render_scene_stats};
 pub use scene::{Scene, SceneFile};

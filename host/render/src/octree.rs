@@ -577,7 +577,7 @@ mod tests {
     use glam::Vec2;
 
     fn marble() -> DipoleParams {
-        crate::material::preset("marble").unwrap()
+        crate::materials::preset("marble").unwrap()
     }
 
     #[test]
@@ -659,7 +659,7 @@ mod tests {
 
     #[test]
     fn geometry_factor_is_one_on_a_plane_and_follows_the_exit_normal() {
-        let p = crate::material::preset("skin1").unwrap();
+        let p = crate::materials::preset("skin1").unwrap();
         let t = RdTable::new(&p, 0.0).with_geometry(&p);
         // Coplanar: exactly the planar kernel.
         for r in [0.3f32, 2.0, 7.0] {

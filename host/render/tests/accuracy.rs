@@ -6,9 +6,10 @@
 use glam::Vec3;
 use qhm_model::DipoleParams;
 use qhm_model::profile::ProfileModel;
+use qhm_render::Material;
 use qhm_render::Mode;
 use qhm_render::builtin::slab;
-use qhm_render::material::{Homogeneous, Material, preset};
+use qhm_render::materials::{Homogeneous, preset};
 use qhm_render::octree::{DipoleTree, RdTable};
 use qhm_render::points::{Entrance, compute_irradiance, poisson_disk};
 use qhm_render::prepare::{measure_hierarchy, prepare, relative_rms};

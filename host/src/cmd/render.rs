@@ -10,7 +10,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use host::output::check_file_output;
 use qhm_model::MaterialModel;
-use qhm_render::material::{PRESET_NAMES, preset};
+use qhm_render::materials::{PRESET_NAMES, preset};
 use qhm_render::prepare::{measure_hierarchy, prepare};
 use qhm_render::{Mesh, Mode, RenderSettings, RenderStats, Scene, SceneFile, render_scene_stats};
 
