@@ -43,6 +43,12 @@ pub struct RenderObjectArgs {
     /// Output radiance, .exr; the variance goes to OUT.var.exr beside it.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also a tone-mapped PNG of the radiance (`qhm render`'s tone map).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// PNG exposure multiplier (default: automatic, 2 / 99th-percentile luminance).
+    #[arg(long)]
+    pub exposure: Option<f32>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -129,6 +135,17 @@ pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
     }
     check_file_output(&a.output, a.force)?;
     check_file_output(&var_out, a.force)?;
+    if let Some(p) = &a.png {
+        if !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+            bail!("--png {} must end in .png", p.display());
+        }
+        check_file_output(p, a.force)?;
+    }
+    if let Some(e) = a.exposure
+        && !(e.is_finite() && e > 0.0)
+    {
+        bail!("--exposure must be > 0");
+    }
     let sample = match SceneDesc::load(&a.sample)? {
         SceneDesc::Sample(s) => s,
         SceneDesc::Target { .. } => bail!(
@@ -154,6 +171,15 @@ pub fn run(a: RenderObjectArgs) -> Result<ExitCode> {
     bar.finish();
     write_exr(&a.output, img.width, img.height, &img.radiance)?;
     write_exr(&var_out, img.width, img.height, &img.variance)?;
+    if let Some(p) = &a.png {
+        qhm_render::Image {
+            width: img.width,
+            height: img.height,
+            pixels: img.radiance.clone(),
+        }
+        .write_png(p, a.exposure)
+        .with_context(|| format!("writing {}", p.display()))?;
+    }
     let m = img.mean();
     let e = img.mean_rel_error();
     let s = img.stats;
