@@ -1,0 +1,244 @@
+//! Step 4 of the fit: the mesostructure entrance function f(w_i) from the
+//! band fluxes of the pass-1 (oblique) stripes relative to the vertical ones.
+
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+
+use super::FitOptions;
+use super::bins::DistanceBins;
+use super::stripes::{
+    NEAR_VERTICAL_COS, SAME_LIGHT_DIR, SPECULAR_VIEW_COS, VERTICAL_KEY, cos_to_mirror, dir_key,
+    f32v,
+};
+use crate::ModelError;
+use crate::dipole;
+use crate::model::{EntranceFunction, Texture};
+use crate::rectified::{Grid, Rectified, StripeEntry};
+
+/// f(w_i) per channel at the measured laser directions, then resampled to the
+/// regular (θ, φ) table by the 4 nearest measured directions (inverse-square
+/// angular weights): the paper's interpolation from the four nearest laser
+/// directions. Returns the table and the measured samples.
+#[allow(clippy::type_complexity)]
+pub(super) fn fit_entrance(
+    data: &Rectified,
+    opts: &FitOptions,
+    notes: &mut Vec<String>,
+) -> Result<(EntranceFunction, Vec<([f32; 3], [f32; 3])>), ModelError> {
+    let is_vertical = |d: [f64; 3]| d[2] > (2f64).to_radians().cos();
+    // Mean per-stripe exitance flux / incident flux, keyed by (light, view, channel).
+    let mut groups: BTreeMap<([i64; 3], [i64; 3], u8), (f64, usize, [f64; 3])> = BTreeMap::new();
+    if !data.index.stripe.iter().any(|s| s.pass == 1) {
+        notes.push(
+            "no pass-1 images: entrance function set to the smooth-surface Fresnel ratio".into(),
+        );
+        return Ok((
+            EntranceFunction::fresnel(opts.eta, opts.n_theta),
+            Vec::new(),
+        ));
+    }
+    // Pass 1 and, as more vertical references, pass 2. The whole stripe
+    // counts, its core included (the near field's share of the light changes
+    // with the angle of incidence), so views that see the laser's specular
+    // reflection on the core are left out; views are made comparable through
+    // the exitance per radiance, so a light whose vertical reference lacks
+    // its view (the top camera sees the vertical laser's mirror reflection)
+    // is still compared.
+    let used: Vec<&StripeEntry> = data
+        .index
+        .stripe
+        .iter()
+        .filter(|s| {
+            (s.pass == 1 || is_vertical(s.light_dir)) && cos_to_mirror(s) <= SPECULAR_VIEW_COS
+        })
+        .collect();
+    if used.is_empty() {
+        return Err(ModelError::Fit(
+            "entrance function: every stripe image sees the laser's specular reflection".into(),
+        ));
+    }
+    let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
+    // The three lasers' planes differ by fractions of a degree: light
+    // directions within ~1 degree of a cluster's first member are one
+    // direction, so each direction has all channels (clusters, not a grid:
+    // rounding would split neighbours across a cell boundary).
+    let mut clusters: Vec<[f64; 3]> = Vec::new();
+    let light_keys: Vec<[i64; 3]> = used
+        .iter()
+        .map(|s| {
+            if is_vertical(s.light_dir) {
+                return VERTICAL_KEY;
+            }
+            let d = s.light_dir;
+            let close = |c: &[f64; 3]| {
+                (c[0] * d[0] + c[1] * d[1] + c[2] * d[2])
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    < SAME_LIGHT_DIR
+            };
+            let first = match clusters.iter().find(|c| close(c)) {
+                Some(c) => *c,
+                None => {
+                    clusters.push(d);
+                    d
+                }
+            };
+            dir_key(first)
+        })
+        .collect();
+    // Each image's outgoing flux per mm of stripe over the band |d| <= reach
+    // around its line: the mean radiance at each signed distance (so the
+    // length of line inside the window does not matter) summed over the
+    // band. One reach for all images (0.9 x the median extent), so a stripe
+    // near the window's edge does not lose more of its profile than the
+    // vertical reference.
+    let grid = &data.index.grid;
+    let extents: Vec<f64> = used.iter().map(|s| band_extent(s, grid)).collect();
+    let reach = {
+        let mut sorted = extents.clone();
+        sorted.sort_by(f64::total_cmp);
+        0.9 * sorted[sorted.len() / 2]
+    };
+    let fluxes: Vec<Option<f64>> = used
+        .par_iter()
+        .zip(&extents)
+        .map(|(s, &e)| -> Result<Option<f64>, ModelError> {
+            if e < reach {
+                return Ok(None);
+            }
+            let img = data.read_image(&s.file)?;
+            let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average);
+            Ok(Some(k * band_flux(&img, s, grid, reach) / s.flux_per_mm))
+        })
+        .collect::<Result<_, _>>()?;
+    let short = fluxes.iter().filter(|f| f.is_none()).count();
+    if short > 0 {
+        notes.push(format!(
+            "entrance function: {short} of {} stripe images left out: their line is within {reach:.1} mm of the window's edge",
+            used.len()
+        ));
+    }
+    for ((s, light), flux) in used.iter().zip(light_keys).zip(fluxes) {
+        let Some(flux) = flux else { continue };
+        let e = groups
+            .entry((light, dir_key(s.view_dir), s.channel))
+            .or_insert((0.0, 0, s.light_dir));
+        e.0 += flux;
+        e.1 += 1;
+    }
+    let mean = |g: &(f64, usize, [f64; 3])| g.0 / g.1 as f64;
+    // The vertical's flux per channel, averaged over its views.
+    let mean_reference: [f64; 3] = std::array::from_fn(|c| {
+        let per_view: Vec<f64> = groups
+            .iter()
+            .filter(|((l, _, ch), _)| *l == VERTICAL_KEY && *ch as usize == c)
+            .map(|(_, g)| mean(g))
+            .collect();
+        per_view.iter().sum::<f64>() / per_view.len() as f64
+    });
+    let mut lights: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
+    for (k, v) in &groups {
+        lights.entry(k.0).or_insert(v.2);
+    }
+    let mut samples: Vec<([f32; 3], [f32; 3])> = vec![([0.0, 0.0, 1.0], [1.0; 3])];
+    for (lk, ld) in &lights {
+        // Near-vertical directions (the vertical stripe from another arc or
+        // turntable angle, tilted by the rig's small errors) are the
+        // reference itself, f = 1, not oblique samples.
+        if *lk == VERTICAL_KEY || ld[2] > NEAR_VERTICAL_COS {
+            continue;
+        }
+        let mut value = [f32::NAN; 3];
+        for c in 0..3u8 {
+            // Σ over the light's views of its flux and of the vertical's in
+            // the same view, or the vertical's mean over views where that
+            // view has no reference.
+            let (mut num, mut den) = (0.0, 0.0);
+            for ((l, v, ch), g) in &groups {
+                if l == lk && *ch == c {
+                    num += mean(g);
+                    den += groups
+                        .get(&(VERTICAL_KEY, *v, c))
+                        .map_or(mean_reference[c as usize], mean);
+                }
+            }
+            value[c as usize] = (num / den) as f32;
+        }
+        if value.iter().any(|v| !v.is_finite()) {
+            // Its stripes all lie near the window's edge, or no vertical
+            // reference shares a view: the table interpolates from the others.
+            notes.push(format!(
+                "entrance function: light direction {ld:.3?} left out (no usable stripe or vertical reference in some channel)"
+            ));
+            continue;
+        }
+        samples.push((f32v(*ld), value));
+    }
+    let n_theta = opts.n_theta.max(2);
+    let n_phi = opts.n_phi.max(1);
+    let mut table = EntranceFunction {
+        n_theta,
+        n_phi,
+        values: vec![[0.0; 3]; n_theta * n_phi],
+    };
+    for k in 0..n_theta {
+        for m in 0..n_phi {
+            let (t, p) = (table.theta(k), table.phi(m));
+            let d = [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()];
+            let mut near: Vec<(f32, [f32; 3])> = samples
+                .iter()
+                .map(|(s, v)| {
+                    (
+                        (s[0] * d[0] + s[1] * d[1] + s[2] * d[2])
+                            .clamp(-1.0, 1.0)
+                            .acos(),
+                        *v,
+                    )
+                })
+                .collect();
+            near.sort_by(|a, b| a.0.total_cmp(&b.0));
+            near.truncate(4);
+            table.values[k * n_phi + m] = if near[0].0 < 1e-4 {
+                near[0].1
+            } else {
+                let ws: Vec<f32> = near.iter().map(|x| 1.0 / (x.0 * x.0)).collect();
+                let sum: f32 = ws.iter().sum();
+                std::array::from_fn(|c| {
+                    near.iter().zip(&ws).map(|(x, w)| x.1[c] * w).sum::<f32>() / sum
+                })
+            };
+        }
+    }
+    Ok((table, samples))
+}
+/// How far the window reaches from the stripe's line on its nearer side, mm
+/// (the signed distance is linear: its extremes sit at corner texels).
+fn band_extent(s: &StripeEntry, grid: &Grid) -> f64 {
+    let (w, h) = (grid.width as usize - 1, grid.height as usize - 1);
+    let (mut lo, mut hi) = (0f64, 0f64);
+    for (i, j) in [(0, 0), (w, 0), (0, h), (w, h)] {
+        let d = s.signed_distance(grid.centre(i, j));
+        lo = lo.min(d);
+        hi = hi.max(d);
+    }
+    hi.min(-lo)
+}
+
+/// Outgoing radiance integrated across the stripe over |d| <= reach, per mm
+/// of line: Σ over texel-wide signed-distance bins of the bin's mean
+/// radiance (over its finite texels) times the bin width.
+fn band_flux(img: &Texture, s: &StripeEntry, grid: &Grid, reach: f64) -> f64 {
+    let c = s.channel as usize;
+    let mut bins = DistanceBins::new(grid.texel_mm, 2.0 * reach);
+    for j in 0..grid.height as usize {
+        for i in 0..grid.width as usize {
+            let d = s.signed_distance(grid.centre(i, j));
+            let l = img.get(i, j)[c] as f64;
+            if d.abs() <= reach && l.is_finite() {
+                bins.add_spread(0.0, d + reach, l);
+            }
+        }
+    }
+    bins.means().into_iter().flatten().sum::<f64>() * grid.texel_mm
+}

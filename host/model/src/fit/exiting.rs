@@ -1,0 +1,251 @@
+//! Step 5 of the fit: the mesostructure exiting function f_v(x, w_o) per
+//! pass-2 view, and the window of texels every view and channel measures.
+
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+
+use super::global::EnteringStripe;
+use super::stripes::{dir_key, f32v};
+use crate::ModelError;
+use crate::model::{ExitingFunction, Texture};
+use crate::profile::ChannelFit;
+use crate::rectified::{Grid, Rectified, StripeEntry};
+
+/// f_v of every pass-2 view of `data`, cropped to the texels every view and
+/// channel reaches: the function and that window, [i0, j0, width, height].
+/// `step` is called once per view.
+pub(super) fn fit_exiting(
+    data: &Rectified,
+    channels: &[ChannelFit],
+    tables: &[EnteringStripe; 3],
+    notes: &mut Vec<String>,
+    step: &(dyn Fn() + Sync),
+) -> Result<(ExitingFunction, [u32; 4]), ModelError> {
+    let grid = data.index.grid;
+    let (w, h) = (grid.width as usize, grid.height as usize);
+    let mut views: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
+    for s in data.index.stripe.iter().filter(|s| s.pass == 2) {
+        views.entry(dir_key(s.view_dir)).or_insert(s.view_dir);
+    }
+    // From the core out to every valid texel: the measured profile follows
+    // the data wherever it goes, and a texel's sum weighs each stripe by its
+    // signal, so far, faint stripes count little.
+    let fv_range: [[f64; 2]; 3] = std::array::from_fn(|c| [0.0, channels[c].fit.range_mm[1]]);
+    let fv_raw: Vec<Vec<[f64; 3]>> = views
+        .keys()
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|key| -> Result<Vec<[f64; 3]>, ModelError> {
+            let images: Vec<(&StripeEntry, Texture)> = data
+                .index
+                .stripe
+                .iter()
+                .filter(|s| s.pass == 2 && dir_key(s.view_dir) == **key)
+                .map(|s| Ok((s, data.read_image(&s.file)?)))
+                .collect::<Result<_, ModelError>>()?;
+            let out = exiting_view(&images, &grid, &fv_range, channels, tables);
+            step();
+            Ok(out)
+        })
+        .collect::<Result<_, _>>()?;
+    let window = measured_window(&fv_raw, w, h);
+    let Some(window) = window else {
+        return Err(ModelError::Fit(format!(
+            "f_v: no texel is reached by the pass-2 stripes (within {:.2} mm) in every view and channel",
+            fv_range[0][1].min(fv_range[1][1]).min(fv_range[2][1])
+        )));
+    };
+    let [i0, j0, ww, wh] = window.map(|x| x as usize);
+    if (ww, wh) != (w, h) {
+        notes.push(format!(
+            "f_v: pass-2 stripes reach texels {i0}..{} x {j0}..{} of the {w}x{h} window in every view and channel; the model covers those",
+            i0 + ww,
+            j0 + wh
+        ));
+    }
+    let crop = |t: &Texture| Texture {
+        width: ww,
+        height: wh,
+        data: (0..ww * wh)
+            .map(|p| t.get(i0 + p % ww, j0 + p / ww))
+            .collect(),
+    };
+    let exiting = ExitingFunction {
+        views: views.values().map(|&v| f32v(v)).collect(),
+        maps: fv_raw
+            .iter()
+            .map(|m| {
+                crop(&Texture {
+                    width: w,
+                    height: h,
+                    data: m.iter().map(|v| v.map(|x| x as f32)).collect(),
+                })
+            })
+            .collect(),
+    };
+    Ok((exiting, window))
+}
+
+/// f_v of one view over the whole window (NaN where a channel has no
+/// stripe data): f_v(x) = A Σ_l L(x, l) / Σ_l flux_l Ī(d(x, l)), with Ī(d)
+/// the view's own measured profile (radiance per flux, the mean over its
+/// texels at distance d in texel-wide bins, smoothed [1, 2, 1] and
+/// interpolated linearly), and A = Σ L / Σ T(0) I_D flux / π over the
+/// fitted range (the formula after paper eq. 6, pooled over the view's
+/// texels): A sets the view's level against the dipole, Ī its shape. With
+/// I_D in place of Ī each texel's f_v took the model's misfit at its own
+/// distances from the few stripes, so it varied with the distance from
+/// them: bands parallel to the stripe lines. Distances from 0 (the core
+/// is the strongest signal and, at ci and default scale, the only one
+/// within the usable range for texels on a stripe) to the fitted range's
+/// end count; Ī is the measured profile times the model's, I_D g(d), with
+/// g the binned ratio, which is smooth where I_D is steep.
+fn exiting_view(
+    images: &[(&StripeEntry, Texture)],
+    grid: &Grid,
+    fv_range: &[[f64; 2]; 3],
+    channels: &[ChannelFit],
+    tables: &[EnteringStripe; 3],
+) -> Vec<[f64; 3]> {
+    let (w, h) = (grid.width as usize, grid.height as usize);
+    let tx = grid.texel_mm;
+    let mut out = vec![[f64::NAN; 3]; w * h];
+    for c in 0..3 {
+        let [d0, d1] = fv_range[c];
+        let [lo, hi] = channels[c].fit.range_mm;
+        let nb = (d1 / tx).ceil() as usize + 1;
+        // Per bin: Σ L / flux, Σ d, count; and the level A over the fitted range.
+        let (mut sl, mut sm) = (vec![0.0; nb], vec![0.0; nb]);
+        let (mut sd, mut n) = (vec![0.0; nb], vec![0.0; nb]);
+        let (mut a_num, mut a_den) = (0.0, 0.0);
+        for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
+            for j in 0..h {
+                for i in 0..w {
+                    let l = img.get(i, j)[c] as f64;
+                    let d = s.distance(grid.centre(i, j));
+                    if !l.is_finite() || d < d0 || d > d1 {
+                        continue;
+                    }
+                    let b = ((d / tx) as usize).min(nb - 1);
+                    sl[b] += l / s.flux_per_mm;
+                    sm[b] += tables[c].texel_mean(d, tx);
+                    sd[b] += d;
+                    n[b] += 1.0;
+                    if d >= lo && d <= hi {
+                        a_num += l;
+                        a_den += tables[c].texel_mean(d, tx) * s.flux_per_mm / PI;
+                    }
+                }
+            }
+        }
+        if !(a_den > 0.0) {
+            continue;
+        }
+        let level = a_num / a_den;
+        // The measured profile against the model's, g = Σ L / Σ I_D per bin:
+        // smooth where the profile is steep, so it interpolates well.
+        let pts: Vec<(f64, f64)> = (0..nb)
+            .filter(|&b| n[b] > 0.0 && sm[b] > 0.0)
+            .map(|b| (sd[b] / n[b], sl[b] / sm[b]))
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        // [1, 2, 1] smoothing between measured neighbours.
+        let smooth: Vec<(f64, f64)> = (0..pts.len())
+            .map(|k| {
+                if k == 0 || k + 1 == pts.len() {
+                    pts[k]
+                } else {
+                    (
+                        pts[k].0,
+                        0.25 * pts[k - 1].1 + 0.5 * pts[k].1 + 0.25 * pts[k + 1].1,
+                    )
+                }
+            })
+            .collect();
+        let ratio = |d: f64| -> f64 {
+            let k = smooth.partition_point(|p| p.0 < d);
+            if k == 0 {
+                smooth[0].1
+            } else if k == smooth.len() {
+                smooth[k - 1].1
+            } else {
+                let (a, b) = (smooth[k - 1], smooth[k]);
+                let t = (d - a.0) / (b.0 - a.0);
+                a.1 + t * (b.1 - a.1)
+            }
+        };
+        let profile = |d: f64| tables[c].texel_mean(d, tx) * ratio(d);
+        let mut num = vec![0.0; w * h];
+        let mut den = vec![0.0; w * h];
+        for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
+            for j in 0..h {
+                for i in 0..w {
+                    let l = img.get(i, j)[c] as f64;
+                    let d = s.distance(grid.centre(i, j));
+                    if l.is_finite() && d >= d0 && d <= d1 {
+                        num[j * w + i] += l;
+                        den[j * w + i] += s.flux_per_mm * profile(d);
+                    }
+                }
+            }
+        }
+        // Where the scans reach: a texel whose expected signal is under
+        // REACH of the median texel's is left unmeasured.
+        let mut sorted: Vec<f64> = den.iter().copied().filter(|d| *d > 0.0).collect();
+        sorted.sort_by(f64::total_cmp);
+        let floor = sorted
+            .get(sorted.len() / 2)
+            .map_or(f64::INFINITY, |m| REACH * m);
+        for p in 0..w * h {
+            if den[p] > 0.0 && den[p] >= floor {
+                out[p][c] = level * num[p] / den[p];
+            }
+        }
+    }
+    out
+}
+/// A texel counts as reached by a view's stripes when their summed
+/// expected signal there is at least this share of the median texel's.
+const REACH: f64 = 0.05;
+
+/// The largest block of rows and columns around the window's centre whose
+/// texels have f_v in every view and channel: [i0, j0, width, height].
+fn measured_window(maps: &[Vec<[f64; 3]>], w: usize, h: usize) -> Option<[u32; 4]> {
+    let ok = |i: usize, j: usize| {
+        maps.iter()
+            .all(|m| m[j * w + i].iter().all(|v| v.is_finite()))
+    };
+    // Grow a rectangle from the centre while the added row or column is whole.
+    let (ci, cj) = (w / 2, h / 2);
+    if !ok(ci, cj) {
+        return None;
+    }
+    let (mut i0, mut i1, mut j0, mut j1) = (ci, ci + 1, cj, cj + 1);
+    loop {
+        let mut grew = false;
+        if j0 > 0 && (i0..i1).all(|i| ok(i, j0 - 1)) {
+            j0 -= 1;
+            grew = true;
+        }
+        if j1 < h && (i0..i1).all(|i| ok(i, j1)) {
+            j1 += 1;
+            grew = true;
+        }
+        if i0 > 0 && (j0..j1).all(|j| ok(i0 - 1, j)) {
+            i0 -= 1;
+            grew = true;
+        }
+        if i1 < w && (j0..j1).all(|j| ok(i1, j)) {
+            i1 += 1;
+            grew = true;
+        }
+        if !grew {
+            break;
+        }
+    }
+    Some([i0 as u32, j0 as u32, (i1 - i0) as u32, (j1 - j0) as u32])
+}
