@@ -10,8 +10,9 @@
 //! - [`render_scene`] with [`RenderSettings`] ([`settings`]): pass 1
 //!   ([`prepare`]: Poisson-disk surface samples and their f-attenuated
 //!   irradiance from [`points`], the Jensen-Buhler octree from [`octree`],
-//!   texture synthesis from [`synth`]), then per-pixel shading ([`render`]),
-//!   with the smooth boundary's entry and exit shapes ([`boundary`]).
+//!   texture synthesis from [`texture_synthesis`]), then per-pixel shading
+//!   ([`render`]), with the smooth boundary's entry and exit shapes
+//!   ([`boundary`]).
 //! - Mesh files: [`obj`] and [`ply`] read a [`mesh_input::MeshInput`], which
 //!   [`Mesh::build`] validates.
 //! - [`Image`]: EXR and tone-mapped PNG output; [`export`]: pbrt-v4 and
@@ -38,8 +39,8 @@ pub mod prepare;
 pub mod render;
 pub mod scene;
 pub mod settings;
-pub mod synth;
 mod teapot_data;
+pub mod texture_synthesis;
 
 pub use camera::Camera;
 pub use error::{MeshError, RenderError};

@@ -1,8 +1,9 @@
 //! Pass 1 of the renderer, everything before the first camera ray: the
 //! surface samples ([`crate::points`]), their irradiance through the
 //! mode's entrance, the octree over them ([`crate::octree`]) and its R_d
-//! table, and the synthesized texture ([`crate::synth`]). [`Prepared`]
-//! keeps it for the pixel pass ([`crate::render`]) and for relighting.
+//! table, and the synthesized texture ([`crate::texture_synthesis`]).
+//! [`Prepared`] keeps it for the pixel pass ([`crate::render`]) and for
+//! relighting.
 
 use std::f32::consts::PI;
 use std::time::Instant;
@@ -17,7 +18,7 @@ use crate::octree::{DipoleTree, RdTable};
 use crate::points::{self, Entrance, SurfaceSamples};
 use crate::scene::Scene;
 use crate::settings::{RenderSettings, RenderStats};
-use crate::synth::{Features, SynthSettings, SynthTexture};
+use crate::texture_synthesis::{Features, SynthSettings, SynthTexture};
 
 /// Pass-1 results, reusable across renders of the same scene and lights.
 pub struct Prepared {

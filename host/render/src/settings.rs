@@ -5,7 +5,7 @@
 use std::str::FromStr;
 
 use crate::error::RenderError;
-use crate::synth::SynthSettings;
+use crate::texture_synthesis::SynthSettings;
 
 /// Which terms of eq. 4 are rendered (paper Fig. 9).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
