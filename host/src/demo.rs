@@ -46,6 +46,11 @@ pub struct DemoOptions {
     pub quiet: bool,
     /// Skip the renders (the fit and the report still run).
     pub skip_renders: bool,
+    /// Use this calibration file of the same simulated rig (scale and seed,
+    /// e.g. an earlier demo's `calibration.toml`) instead of taking a
+    /// calibration capture; the calibrate stage then only scores it against
+    /// the rig's truth.
+    pub calibration: Option<PathBuf>,
 }
 
 /// Wall time of one stage.
@@ -303,13 +308,24 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     // other, then the procedures on its frames.
     let cal_path = out.join("calibration.toml");
     let (cal_ok, cal_rows) = stages.run("calibrate", || {
-        let rows = crate::calibrate::calibrate_sim(
-            opts.scale,
-            opts.seed,
-            &out.join("calibration-capture"),
-            &cal_path,
-            opts.quiet,
-        )?;
+        let rows = match &opts.calibration {
+            None => crate::calibrate::calibrate_sim(
+                opts.scale,
+                opts.seed,
+                &out.join("calibration-capture"),
+                &cal_path,
+                opts.quiet,
+            )?,
+            Some(given) => {
+                let cal = Calibration::load(given)
+                    .with_context(|| format!("calibration {}", given.display()))?;
+                cal.save(&cal_path)
+                    .with_context(|| format!("writing {}", cal_path.display()))?;
+                let plane_arc =
+                    qhm_acquire::cal_plan::CalPlanConfig::for_scale(opts.scale).plane_arc;
+                sim_devices::SimTruth::new(opts.seed).rows(&cal, plane_arc)
+            }
+        };
         if !opts.quiet {
             for r in &rows {
                 eprintln!("   {r}");

@@ -317,6 +317,7 @@ fn main() -> Res<()> {
             seed: a.seed,
             quiet: true,
             skip_renders: true,
+            calibration: None,
         };
         host::demo::run(&opts)?;
     }

@@ -10,8 +10,7 @@ use std::time::Duration;
 
 use protocol::LaserColour;
 use qhm_acquire::{
-    CaptureDir, Manifest, NoProgress, Plan, PlanConfig, Progress, RunOptions, RunReport, Scale,
-    run_capture,
+    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, RunReport, Scale, run_capture,
 };
 use sha2::{Digest, Sha256};
 use sim_devices::{SimRig, SimRigConfig};
@@ -89,6 +88,29 @@ impl Progress for Countdown {
             && let Some(tx) = self.hit.take()
         {
             let _ = tx.send(());
+        }
+    }
+}
+
+/// Resets the MCU `delay` after the n-th frame written, for each `(n, delay)`.
+struct ResetAfter {
+    mcu: sim::RigHandle,
+    at: Vec<(usize, Duration)>,
+    frames: usize,
+    injected: Vec<tokio::task::JoinHandle<()>>,
+}
+
+impl Progress for ResetAfter {
+    fn frame(&mut self, _step: &qhm_acquire::plan::Step, _done: usize) {
+        self.frames += 1;
+        for &(n, delay) in &self.at {
+            if n == self.frames {
+                let mcu = self.mcu.clone();
+                self.injected.push(tokio::spawn(async move {
+                    tokio::time::sleep(delay).await;
+                    mcu.reset_mcu();
+                }));
+            }
         }
     }
 }
@@ -216,16 +238,20 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
     let reset_dir = tmp.path().join("reset");
     let mut dir = CaptureDir::create(&reset_dir, manifest(&plan)).unwrap();
     let mut rig = start_rig().await;
-    // Resets land after homing (about 3 s of wall time at the ci speed).
     let opts = options(&rig);
-    let mcu = rig.handle.rig().clone();
-    let delays = [3500 + rng.below(2000), 2000 + rng.below(3000)];
-    let injector = tokio::spawn(async move {
-        for d in delays {
-            tokio::time::sleep(Duration::from_millis(d)).await;
-            mcu.reset_mcu();
-        }
-    });
+    // Two resets, each a random few milliseconds after a random frame (so
+    // mid-step, mid-sweep or mid-move), the first after homing.
+    let first = 1 + rng.below(plan.frames() as u64 / 2) as usize;
+    let second = first + 1 + rng.below(plan.frames() as u64 / 3) as usize;
+    let mut resets = ResetAfter {
+        mcu: rig.handle.rig().clone(),
+        at: vec![
+            (first, Duration::from_millis(rng.below(20))),
+            (second, Duration::from_millis(rng.below(20))),
+        ],
+        frames: 0,
+        injected: Vec::new(),
+    };
     let mut op = rig.handle.operator();
     let report = run_capture(
         &rig.link,
@@ -233,11 +259,13 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
         &mut op,
         &mut dir,
         &opts,
-        &mut NoProgress,
+        &mut resets,
     )
     .await
     .expect("run with MCU resets");
-    injector.await.unwrap();
+    for r in resets.injected {
+        r.await.unwrap();
+    }
     assert!(report.complete);
     assert!(
         report.resets_recovered >= 1,

@@ -18,6 +18,7 @@ fn ci_demo_recovers_the_homogeneous_sample() {
         seed: 3,
         quiet: true,
         skip_renders: false,
+        calibration: None,
     };
     let summary = run(&opts).expect("the ci demo runs");
     let truth = reference(sample).expect("homogeneous presets have a truth");
@@ -108,22 +109,55 @@ fn assert_meets_issue_5(
 /// centimetres) and on skin (a' down to 0.92, most light near the line).
 /// Measured (seed 1): whole milk a' within 0.0001, s'_t -2.1, -1.8, -1.1 %;
 /// skin2 a' within 0.0010, s'_t -0.4, +0.1, +0.9 %. Other seeds and
-/// presets: README "Status".
+/// presets: README "Status". Both captures are of the same rig (seed 1),
+/// so the skin's demo takes the milk's calibration instead of calibrating
+/// again, and scores it against the rig's truth all the same.
 #[test]
 fn ci_demo_recovers_milk_and_skin() {
-    for sample in ["whole-milk", "skin2"] {
-        let tmp = tempfile::tempdir().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let milk_cal = tmp.path().join("whole-milk/calibration.toml");
+    for (sample, calibration) in [("whole-milk", None), ("skin2", Some(milk_cal.clone()))] {
         let opts = DemoOptions {
             sample: sample.into(),
             scale: Scale::Ci,
-            out: tmp.path().join("demo"),
+            out: tmp.path().join(sample),
             force: false,
             seed: 1,
             quiet: true,
             skip_renders: true,
+            calibration,
         };
         let summary = run(&opts).expect("the ci demo runs");
+        assert_eq!(
+            (
+                summary.calibration_rows_within_target,
+                summary.calibration_rows
+            ),
+            (58, 58),
+            "{sample}"
+        );
         let truth = reference(sample).expect("homogeneous presets have a truth");
         assert_meets_issue_5(sample, &summary.recovered, &truth);
     }
+    assert!(!tmp.path().join("skin2/calibration-capture").exists());
+}
+
+/// A calibration of another rig (seed) is scored against this rig's truth:
+/// the demo does not take it for its own.
+#[test]
+fn a_calibration_of_another_rig_scores_badly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let plane_arc = qhm_acquire::cal_plan::CalPlanConfig::for_scale(Scale::Ci).plane_arc;
+    let truth = sim_devices::SimTruth::new(2);
+    let mut other = qhm_imaging::Calibration::default();
+    truth.truth(&mut other, plane_arc);
+    let path = tmp.path().join("seed2.toml");
+    other.save(&path).unwrap();
+    let own = sim_devices::SimTruth::new(1);
+    let ok = |t: &sim_devices::SimTruth| {
+        let cal = qhm_imaging::Calibration::load(&path).unwrap();
+        t.rows(&cal, plane_arc).iter().filter(|r| r.ok).count()
+    };
+    assert_eq!(ok(&truth), 58);
+    assert!(ok(&own) < 58, "seed 2's calibration passes for seed 1");
 }

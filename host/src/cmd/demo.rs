@@ -31,6 +31,10 @@ pub struct DemoArgs {
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
+    /// Use this calibration of the same simulated rig (same --scale and
+    /// --seed, e.g. an earlier demo's calibration.toml) instead of calibrating.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
 }
 
 pub fn run(args: DemoArgs) -> Result<ExitCode> {
@@ -43,6 +47,7 @@ pub fn run(args: DemoArgs) -> Result<ExitCode> {
         seed: args.seed,
         quiet: args.quiet,
         skip_renders: false,
+        calibration: args.calibration,
     };
     let summary = run_demo(&opts)?;
     println!("{}", summary_table(&summary));
