@@ -38,7 +38,7 @@ const TRUTH: DipoleParams = DipoleParams {
     alpha_prime: [0.99, 0.97, 0.9],
     sigma_t_prime: [1.0, 1.5, 2.0],
     eta: 1.3,
-    model: qhm_model::profile::ProfileModel::Dipole,
+    model: qhm_model::ProfileModel::Dipole,
 };
 
 /// A small synthetic rectified capture (a tenth of a second's fit with `--model dipole`).

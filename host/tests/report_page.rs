@@ -10,8 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use qhm_model::ProfileModel;
 use qhm_model::fit::{FitOptions, fit_capture};
-use qhm_model::profile::ProfileModel;
 use qhm_model::synth::{SynthSpec, write_synthetic};
 use qhm_model::{DipoleParams, MaterialModel};
 

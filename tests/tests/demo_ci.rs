@@ -69,7 +69,7 @@ fn ci_demo_recovers_the_homogeneous_sample() {
         "no oblique laser direction was measured"
     );
     for (dir, f) in oblique {
-        let t = qhm_model::dipole::fresnel_transmittance_ratio(dir[2] as f64, model.dipole.eta);
+        let t = qhm_model::fresnel::fresnel_transmittance_ratio(dir[2] as f64, model.dipole.eta);
         for c in 0..3 {
             let err = f[c] as f64 / t - 1.0;
             assert!(

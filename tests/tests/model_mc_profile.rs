@@ -11,9 +11,10 @@
 //! divides both by T(0), the share that enters.
 
 use glam::Vec3;
-use qhm_model::dipole::normal_transmittance;
-use qhm_model::profile::{Norm, Profile, ProfileModel, fit_profile};
-use qhm_model::transport::HalfSpace;
+use qhm_model::ProfileModel;
+use qhm_model::fresnel::normal_transmittance;
+use qhm_model::profile::{Norm, Profile, fit_profile};
+use qhm_model::radiative_transfer::HalfSpace;
 use sim_light::*;
 
 /// (I(d) profile, R) of a large homogeneous slab (300 x 300 x 150 mm,
@@ -169,8 +170,8 @@ fn mc_stripe_profiles_of_the_homogeneous_presets_fit_the_truth() {
 
 /// The same transport problem solved twice, independently: Monte Carlo
 /// random walks (sim-light) and the Fourier-domain integral equation of
-/// qhm_model::transport. R agrees within 0.5 % (measured: 0.01 %) and the
-/// stripe's profile, in 1 mm bands from 0.5 to 6.5 mm while above a
+/// qhm_model::radiative_transfer. R agrees within 0.5 % (measured: 0.01 %)
+/// and the stripe's profile, in 1 mm bands from 0.5 to 6.5 mm while above a
 /// twentieth of the first, within 3 % (Monte Carlo noise there: 1-2 %);
 /// the classic dipole is 5-12 % off over the same bands.
 #[test]

@@ -15,7 +15,7 @@ fn dipole() -> DipoleParams {
         alpha_prime: [0.98, 0.95, 0.9],
         sigma_t_prime: [1.5, 1.5, 1.5],
         eta: 1.3,
-        model: qhm_model::profile::ProfileModel::Dipole,
+        model: qhm_model::ProfileModel::Dipole,
     }
 }
 

@@ -7,11 +7,13 @@
 use std::time::Instant;
 
 use qhm_model::DipoleParams;
-use qhm_model::dipole::{Dipole, normal_transmittance};
+use qhm_model::ProfileModel;
+use qhm_model::dipole::Dipole;
 use qhm_model::fit::{FitOptions, fit_capture};
-use qhm_model::profile::{Norm, Profile, ProfileModel, fit_profile};
+use qhm_model::fresnel::normal_transmittance;
+use qhm_model::profile::{Norm, Profile, fit_profile};
+use qhm_model::radiative_transfer::HalfSpace;
 use qhm_model::synth::{SynthSpec, write_synthetic};
-use qhm_model::transport::HalfSpace;
 
 fn main() {
     // One channel: whole milk red (Jensen et al. 2001), 400 profile points

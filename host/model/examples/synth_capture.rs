@@ -17,7 +17,7 @@ fn main() {
         alpha_prime: [0.995, 0.98, 0.9],
         sigma_t_prime: [1.2, 1.8, 2.6],
         eta: 1.3,
-        model: qhm_model::profile::ProfileModel::Dipole,
+        model: qhm_model::ProfileModel::Dipole,
     };
     write_synthetic(&out.join("capture"), &SynthSpec::small(truth)).expect("synthesise");
     let dp = Dipole::new(truth.alpha_prime[1], truth.sigma_t_prime[1], 1.3);

@@ -63,3 +63,12 @@ impl From<qhm_formats::FormatError> for ModelError {
         }
     }
 }
+
+/// A value as the user would write it: `1e300`, not 301 digits.
+pub(crate) fn number(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e9).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        x.to_string()
+    }
+}

@@ -32,10 +32,12 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::ModelError;
-use crate::dipole::{self, DipoleParams};
+use crate::dipole;
 use crate::model::{FitDiagnostics, MaterialModel};
-use crate::profile::{Norm, ProfileModel};
+use crate::profile::Norm;
 use crate::rectified::Rectified;
+use crate::subsurface::DipoleParams;
+use crate::subsurface::ProfileModel;
 use stripes::dir_key;
 
 /// Options of [`fit_capture`].

@@ -17,13 +17,13 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
-use crate::dipole::DipoleParams;
 use crate::exrio::{read_rgb, write_rgb};
 use crate::model::{
     EntranceFunction, ExitingFunction, FitDiagnostics, LocalReflectance, LrfSample, MaterialModel,
     Texture, norm,
 };
-use crate::profile::ProfileModel;
+use crate::subsurface::DipoleParams;
+use crate::subsurface::ProfileModel;
 
 /// The `format` string of a manifest.
 pub const FORMAT: &str = "qhm-material";

@@ -13,8 +13,9 @@ use std::f32::consts::{FRAC_PI_2, PI};
 
 use serde::{Deserialize, Serialize};
 
-use crate::dipole::{DipoleParams, fresnel_transmittance_ratio};
+use crate::fresnel::fresnel_transmittance_ratio;
 use crate::profile::ChannelFit;
+use crate::subsurface::DipoleParams;
 
 /// An RGB f32 image stored row-major, row 0 first, sampled with wrap-around:
 /// the rectified dataset's image type (qhm_formats), so the fit reads its
@@ -254,7 +255,7 @@ mod tests {
             alpha_prime: [0.99, 0.98, 0.9],
             sigma_t_prime: [1.0, 1.5, 2.0],
             eta: 1.3,
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
         }
     }
 

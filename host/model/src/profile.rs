@@ -10,7 +10,7 @@
 //! (docs/model-format.md).
 //!
 //! I_D(d) and R_total(a') come from a [`ProfileModel`]: by default radiative
-//! transfer solved in the half-space ([`crate::transport`]), which the
+//! transfer solved in the half-space ([`crate::radiative_transfer`]), which the
 //! paper's dipole approximates; the dipole itself is 5-7 % off in s'_t at
 //! eta 1.3 and does not hold below a' ~ 0.95 (docs/model-format.md).
 //!
@@ -27,8 +27,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
-use crate::dipole::{self, SIGMA_T_PRIME_MAX, ScaledStripe};
-use crate::transport::HalfSpace;
+use crate::error::number;
+use crate::fresnel::normal_transmittance;
+use crate::scaled_stripe::ScaledStripe;
+use crate::subsurface::{ProfileModel, check_eta};
 
 /// The CSV header of a profile file.
 pub const CSV_HEADER: &str = "distance_mm,intensity_per_mm";
@@ -45,115 +47,12 @@ pub enum Norm {
     Absolute,
 }
 
-/// The light transport a profile is modelled with: what I_D(d) and
-/// R_total(a') are.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ProfileModel {
-    /// Radiative transfer in the half-space, solved without diffusion
-    /// ([`crate::transport`]): what the dipole approximates.
-    #[default]
-    Transport,
-    /// The paper's classic dipole with Jensen & Buhler's R_total(a').
-    Dipole,
-}
-
-impl ProfileModel {
-    /// Fits stored before the model was recorded used the dipole.
-    pub fn recorded_before_choice() -> Self {
-        ProfileModel::Dipole
-    }
-
-    /// a' from the total diffuse reflectance per entered flux.
-    pub fn albedo(self, reflectance: f64, eta: f64) -> Result<f64, ModelError> {
-        match self {
-            ProfileModel::Dipole => dipole::alpha_prime_from_reflectance(reflectance, eta),
-            ProfileModel::Transport => {
-                check_eta(eta)?;
-                HalfSpace::shared(eta).albedo_from_reflectance(reflectance)
-            }
-        }
-    }
-
-    /// R_total(a') per entered flux.
-    pub fn total_reflectance(self, alpha_prime: f64, eta: f64) -> f64 {
-        match self {
-            ProfileModel::Dipole => dipole::total_reflectance(alpha_prime, eta),
-            ProfileModel::Transport => HalfSpace::shared(eta).total_reflectance(alpha_prime),
-        }
-    }
-
-    /// I_D(d) of a' for every s'_t, good for s'_t d <= `x_max`.
-    pub fn stripe_table(self, alpha_prime: f64, eta: f64, x_max: f64) -> ScaledStripe {
-        match self {
-            ProfileModel::Dipole => ScaledStripe::new(alpha_prime, eta, x_max),
-            ProfileModel::Transport => {
-                ScaledStripe::from_unit_profile(alpha_prime, eta, x_max, |xs| {
-                    HalfSpace::shared(eta).line_profile(alpha_prime, xs)
-                })
-            }
-        }
-    }
-
-    /// Exitance per unit radiance seen from outside at each of
-    /// `cos_views`, for light of reduced albedo `alpha_prime` leaving the
-    /// sample: what turns a camera's radiance into I(d). The dipole takes
-    /// the light under the boundary as isotropic; transport has its exact
-    /// angular distribution, which at a' 0.8 sends 6 % less along the
-    /// normal (eta 1.3).
-    pub fn exitance_per_radiance(self, alpha_prime: f64, eta: f64, cos_views: &[f64]) -> Vec<f64> {
-        match self {
-            ProfileModel::Dipole => {
-                let fa = dipole::fresnel_hemispherical_average(eta);
-                cos_views
-                    .iter()
-                    .map(|&c| dipole::exitance_per_radiance(c, eta, fa))
-                    .collect()
-            }
-            ProfileModel::Transport => {
-                let emergent = HalfSpace::shared(eta).emergent(alpha_prime);
-                cos_views
-                    .iter()
-                    .map(|&c| emergent.exitance_per_radiance(c))
-                    .collect()
-            }
-        }
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            ProfileModel::Transport => "transport",
-            ProfileModel::Dipole => "dipole",
-        }
-    }
-}
-
-fn check_eta(eta: f64) -> Result<(), ModelError> {
-    if eta.is_finite() && eta > 1.0 && eta < 3.0 {
-        Ok(())
-    } else {
-        Err(ModelError::Domain(format!(
-            "relative index eta = {} is outside (1, 3)",
-            number(eta)
-        )))
-    }
-}
-
-/// A value as the user would write it: `1e300`, not 301 digits.
-fn number(x: f64) -> String {
-    if x != 0.0 && x.is_finite() && !(1e-4..1e9).contains(&x.abs()) {
-        format!("{x:e}")
-    } else {
-        x.to_string()
-    }
-}
-
 /// The largest total diffuse reflectance a flat sample of relative index
 /// `eta` can have per incident flux: 1 - F(0) = T(0), the share of a normal
 /// beam that enters (the rest, F(0) = ((eta - 1) / (eta + 1))², is the
 /// specular reflection, which R leaves out). 0.98299 at eta 1.3.
 pub fn max_reflectance(eta: f64) -> f64 {
-    dipole::normal_transmittance(eta)
+    normal_transmittance(eta)
 }
 
 /// Refuses a reflectance outside (0, [`max_reflectance`]], in the user's terms.
@@ -179,6 +78,9 @@ fn check_reflectance(reflectance: f64, eta: f64) -> Result<(), ModelError> {
 
 /// Smallest s'_t considered, mm^-1 (s'_t = 0 has no dipole).
 pub const SIGMA_T_PRIME_MIN: f64 = 0.01;
+
+/// Largest s'_t the fit considers, mm^-1 (paper: 0 to 10).
+pub const SIGMA_T_PRIME_MAX: f64 = 10.0;
 
 /// A measured stripe profile, sorted by distance.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -349,7 +251,7 @@ pub fn fit_profile(
     // The measurement is per incident flux; the dipole is per entered flux,
     // and a normal stripe enters through T(0) (Jensen et al. 2001's F_t(w_i)).
     check_eta(eta)?;
-    let t_in = dipole::normal_transmittance(eta);
+    let t_in = normal_transmittance(eta);
     check_reflectance(reflectance, eta)?;
     let entered = Profile {
         intensity: profile.intensity.iter().map(|i| i / t_in).collect(),
@@ -597,7 +499,8 @@ pub fn search_sigma_t_prime(
 mod tests {
     use super::*;
 
-    use crate::dipole::Dipole;
+    use crate::dipole::{self, Dipole};
+    use crate::radiative_transfer::HalfSpace;
 
     /// A synthetic profile of `model` itself, per incident flux as measured,
     /// T(0) I_D(d), with optional multiplicative noise from a fixed-seed LCG.
@@ -614,7 +517,7 @@ mod tests {
                 g.iter().map(|g| st * g).collect()
             }
         };
-        let t_in = dipole::normal_transmittance(1.3);
+        let t_in = normal_transmittance(1.3);
         let mut state = seed;
         let mut uniform = move || {
             state = state
@@ -639,7 +542,7 @@ mod tests {
     fn recovers_sigma_t_prime_from_each_models_own_data() {
         for model in [ProfileModel::Dipole, ProfileModel::Transport] {
             for &(a, st) in &[(0.99, 1.0), (0.95, 2.5), (0.999, 0.7), (0.9, 6.0)] {
-                let r = dipole::normal_transmittance(1.3) * model.total_reflectance(a, 1.3);
+                let r = normal_transmittance(1.3) * model.total_reflectance(a, 1.3);
                 let p = synthetic_of(model, a, st, 0.0, 1);
                 let fit = fit_profile(&p, r, 1.3, model, None, Norm::Poisson).unwrap();
                 assert_eq!(fit.model, model);
@@ -656,7 +559,7 @@ mod tests {
     #[test]
     fn fit_is_stable_under_small_range_changes() {
         let (a, st) = (0.98, 1.5);
-        let r = dipole::normal_transmittance(1.3) * dipole::total_reflectance(a, 1.3);
+        let r = normal_transmittance(1.3) * dipole::total_reflectance(a, 1.3);
         let p = synthetic(a, st, 0.03, 7);
         let base = fit_profile(&p, r, 1.3, ProfileModel::Dipole, None, Norm::Poisson).unwrap();
         assert!(base.auto_range);

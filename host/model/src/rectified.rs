@@ -60,7 +60,7 @@ mod tests {
             alpha_prime: [0.99; 3],
             sigma_t_prime: [1.0; 3],
             eta: 1.3,
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
         });
         spec.width = 8;
         spec.height = 8;

@@ -18,8 +18,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::ModelError;
-use crate::dipole::{SIGMA_T_PRIME_MAX, fresnel_transmittance_ratio, normal_transmittance};
+use crate::fresnel::{fresnel_transmittance_ratio, normal_transmittance};
 use crate::model::{FitDiagnostics, MaterialModel, Texture};
+use crate::profile::SIGMA_T_PRIME_MAX;
 use crate::rectified::Rectified;
 
 const COLOURS: [&str; 3] = ["#d62728", "#2ca02c", "#1f77b4"];
@@ -1480,7 +1481,7 @@ mod tests {
             alpha_prime: [0.99, 0.97, 0.9],
             sigma_t_prime: [1.0, 1.5, 2.0],
             eta: 1.3,
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
         };
         let cap = tempfile::tempdir().unwrap();
         let mut spec = SynthSpec::small(truth);
@@ -1491,7 +1492,7 @@ mod tests {
         // The dipole fits in a fraction of the transport solver's time.
         let fit = FitOptions {
             eta: 1.3,
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
             ..FitOptions::default()
         };
         let (model, _) = fit_capture(cap.path(), &fit).unwrap();

@@ -10,13 +10,15 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::ModelError;
-use crate::dipole::{
-    DipoleParams, ScaledStripe, exitance_per_radiance, fresnel_hemispherical_average,
-    fresnel_transmittance_ratio, normal_transmittance,
-};
 use crate::exrio::write_rgb;
+use crate::fresnel::{
+    exitance_per_radiance, fresnel_hemispherical_average, fresnel_transmittance_ratio,
+    normal_transmittance,
+};
 use crate::model::Texture;
 use crate::rectified::{Grid, Index, LampEntry, Rectified, StripeEntry};
+use crate::scaled_stripe::ScaledStripe;
+use crate::subsurface::DipoleParams;
 
 /// What to synthesise.
 #[derive(Clone, Debug)]
@@ -246,14 +248,14 @@ mod tests {
             alpha_prime: [0.995, 0.98, 0.9],
             sigma_t_prime: [1.2, 1.8, 2.6],
             eta: 1.3,
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
         };
         let spec = SynthSpec::small(truth);
         let dir = tempfile::tempdir().unwrap();
         write_synthetic(dir.path(), &spec).unwrap();
         // The synthetic capture is the dipole's world, so it is fitted with it.
         let opts = FitOptions {
-            model: crate::profile::ProfileModel::Dipole,
+            model: crate::subsurface::ProfileModel::Dipole,
             ..FitOptions::default()
         };
         let (model, _) = fit_capture(dir.path(), &opts).unwrap();

@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use qhm_model::DipoleParams;
-use qhm_model::profile::ProfileModel;
+use qhm_model::ProfileModel;
 use qhm_render::Material;
 use qhm_render::materials::{Homogeneous, preset};
 use qhm_render::{RenderSettings, SceneFile, render_scene_stats};

@@ -8,7 +8,7 @@ use glam::Vec3;
 
 /// g(cos θ_i) per channel: the half-space's diffuse reflectance for a beam
 /// incident at θ_i over that at normal incidence, both per entered flux
-/// (`qhm_model::transport::oblique_reflectance` at the refracted cosine).
+/// (`qhm_model::radiative_transfer::oblique_reflectance` at the refracted cosine).
 /// The irradiance that enters is multiplied by it. 1 at the normal,
 /// rising towards grazing incidence, more for a lower albedo.
 #[derive(Clone, Debug)]
@@ -28,7 +28,9 @@ impl EntryShape {
             .chain(std::iter::once(1.0))
             .collect();
         let r: Vec<Vec<f64>> = (0..3)
-            .map(|c| qhm_model::transport::oblique_reflectance(d.eta, d.alpha_prime[c], &mu0))
+            .map(|c| {
+                qhm_model::radiative_transfer::oblique_reflectance(d.eta, d.alpha_prime[c], &mu0)
+            })
             .collect();
         let g = |c: usize, k: usize| {
             let v = r[c][k] / r[c][Self::N];
@@ -115,8 +117,8 @@ mod tests {
         for name in ["skin1", "marble"] {
             let mut d = crate::materials::preset(name).unwrap();
             for model in [
-                qhm_model::profile::ProfileModel::Dipole,
-                qhm_model::profile::ProfileModel::Transport,
+                qhm_model::ProfileModel::Dipole,
+                qhm_model::ProfileModel::Transport,
             ] {
                 d.model = model;
                 let s = ExitShape::new(&d);

@@ -44,7 +44,7 @@ pub trait Material: Sync {
     /// single view). The renderer then adds what a smooth boundary does to
     /// a half-space of the material's albedo: on entry, the rise of the
     /// diffuse reflectance with the angle of incidence (an oblique beam
-    /// scatters first nearer the surface; `qhm_model::transport::
+    /// scatters first nearer the surface; `qhm_model::radiative_transfer::
     /// oblique_reflectance`), and on exit the emergent radiance's shape
     /// S(w_o) (the Fresnel fall-off towards grazing, ∫ S cos dw_o / pi = 1).
     /// A fitted f and f_v are measured from stripe profiles at each light

@@ -19,7 +19,7 @@ impl Material for Homogeneous {
         self.dipole
     }
     fn entrance(&self, wi: [f32; 3]) -> [f32; 3] {
-        let f = qhm_model::dipole::fresnel_transmittance_ratio(wi[2] as f64, self.dipole.eta);
+        let f = qhm_model::fresnel::fresnel_transmittance_ratio(wi[2] as f64, self.dipole.eta);
         [f as f32; 3]
     }
     fn exiting(&self, _uv: [f32; 2], _wo: [f32; 3]) -> [f32; 3] {
@@ -84,7 +84,7 @@ pub fn preset(name: &str) -> Option<DipoleParams> {
         alpha_prime: a,
         sigma_t_prime: s,
         eta: 1.3,
-        model: qhm_model::profile::ProfileModel::Dipole,
+        model: qhm_model::ProfileModel::Dipole,
     };
     Some(match name {
         "marble" => j([2.19, 2.62, 3.00], [0.0021, 0.0041, 0.0071], 1.5),

@@ -56,7 +56,7 @@ pub enum Entrance<'a, M: Material> {
 
 impl<M: Material> Entrance<'_, M> {
     fn eval(&self, wi_local: Vec3) -> Vec3 {
-        use qhm_model::dipole::{fresnel_dielectric, normal_transmittance};
+        use qhm_model::fresnel::{fresnel_dielectric, normal_transmittance};
         let (base, eta, shape) = match self {
             Entrance::Model(m, shape) => {
                 let eta = m.dipole().eta;

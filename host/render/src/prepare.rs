@@ -112,7 +112,7 @@ pub fn prepare<M: Material>(
         near_field: settings.near_field,
         geometry: settings.geometry,
         eta: dipole.eta,
-        fresnel_average: qhm_model::dipole::fresnel_hemispherical_average(dipole.eta),
+        fresnel_average: qhm_model::fresnel::fresnel_hemispherical_average(dipole.eta),
         exit_shape: material.smooth_boundary().then(|| ExitShape::new(&dipole)),
         entry_shape,
     })

@@ -307,7 +307,7 @@ fn radiance<M: Material>(
             // Normalised: (1 - F_r(w_o)) / ((1 - F̄) pi) integrates to 1
             // against cos dw_o, so the exitance stays Σ R_d E A (see the
             // module comment).
-            let per_radiance = qhm_model::dipole::exitance_per_radiance(
+            let per_radiance = qhm_model::fresnel::exitance_per_radiance(
                 wo_l.z as f64,
                 prep.eta,
                 prep.fresnel_average,

@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 use qhm_model::DipoleParams;
-use qhm_model::profile::ProfileModel;
+use qhm_model::ProfileModel;
 use qhm_render::Material;
 use qhm_render::Mode;
 use qhm_render::builtin::slab;
@@ -79,7 +79,7 @@ fn synthetic() -> DipoleParams {
 
 /// T(0): the share of normal light that enters (R_d counts entered light).
 fn t_in(p: &DipoleParams) -> f32 {
-    qhm_model::dipole::normal_transmittance(p.eta) as f32
+    qhm_model::fresnel::normal_transmittance(p.eta) as f32
 }
 
 #[test]
@@ -245,8 +245,8 @@ fn plain_dipole_keeps_the_total_reflectance() {
     let m = Homogeneous { dipole: p };
     let e = 2.0f32;
     let got = wide_slab_mean(&m, Mode::DipoleOnly, e).x;
-    let f0 = qhm_model::dipole::fresnel_dielectric(1.0, 1.5);
-    let fbar = qhm_model::dipole::fresnel_hemispherical_average(1.5);
+    let f0 = qhm_model::fresnel::fresnel_dielectric(1.0, 1.5);
+    let fbar = qhm_model::fresnel::fresnel_hemispherical_average(1.5);
     let exact = (e as f64 * (1.0 - f0) * p.channel(0).total() * (1.0 - f0)
         / ((1.0 - fbar) * std::f64::consts::PI)) as f32;
     let doubled = exact * ((1.0 - f0) * (1.0 - fbar)) as f32;

@@ -8,8 +8,9 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use clap::Args;
 use host::output::{OutputKind, StagedDir};
+use qhm_model::ProfileModel;
 use qhm_model::dipole::DEFAULT_ETA;
-use qhm_model::profile::{Norm, ProfileModel};
+use qhm_model::profile::Norm;
 use qhm_model::{Profile, fit_profile};
 
 #[derive(Args, Debug)]
@@ -127,7 +128,7 @@ pub fn run_profile(args: FitProfileArgs) -> anyhow::Result<ExitCode> {
         println!("sigma_a       {:.6} mm^-1", fit.sigma_a);
         println!("residual      {:.3e} (relative RMS)", fit.residual);
     }
-    if fit.sigma_t_prime >= qhm_model::dipole::SIGMA_T_PRIME_MAX * 0.999 {
+    if fit.sigma_t_prime >= qhm_model::profile::SIGMA_T_PRIME_MAX * 0.999 {
         bail!(
             "s'_t hit the end of the search interval (10 mm^-1): the profile does not fit the {} model in range",
             fit.model.name()

@@ -43,7 +43,7 @@ pub fn write_model(dir: &Path) -> PathBuf {
             alpha_prime: [0.98, 0.95, 0.9],
             sigma_t_prime: [0.8, 0.8, 0.8],
             eta: 1.3,
-            model: qhm_model::profile::ProfileModel::Dipole,
+            model: qhm_model::ProfileModel::Dipole,
         },
         entrance: EntranceFunction::fresnel(1.3, 19),
         exiting: ExitingFunction { views, maps: fv },

@@ -12,7 +12,7 @@ use super::stripes::{
     f32v,
 };
 use crate::ModelError;
-use crate::dipole;
+use crate::fresnel;
 use crate::model::{EntranceFunction, Texture};
 use crate::rectified::{Grid, Rectified, StripeEntry};
 
@@ -58,7 +58,7 @@ pub(super) fn fit_entrance(
             "entrance function: every stripe image sees the laser's specular reflection".into(),
         ));
     }
-    let fresnel_average = dipole::fresnel_hemispherical_average(opts.eta);
+    let fresnel_average = fresnel::fresnel_hemispherical_average(opts.eta);
     // The three lasers' planes differ by fractions of a degree: light
     // directions within ~1 degree of a cluster's first member are one
     // direction, so each direction has all channels (clusters, not a grid:
@@ -108,7 +108,7 @@ pub(super) fn fit_entrance(
                 return Ok(None);
             }
             let img = data.read_image(&s.file)?;
-            let k = dipole::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average);
+            let k = fresnel::exitance_per_radiance(s.view_dir[2], opts.eta, fresnel_average);
             Ok(Some(k * band_flux(&img, s, grid, reach) / s.flux_per_mm))
         })
         .collect::<Result<_, _>>()?;

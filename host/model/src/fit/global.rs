@@ -10,9 +10,11 @@ use super::FitOptions;
 use super::bins::DistanceBins;
 use super::stripes::{SPECULAR_VIEW_COS, core_mm, cos_to_mirror, dir_key};
 use crate::ModelError;
-use crate::dipole::{self, ScaledStripe};
-use crate::profile::{ChannelFit, Profile, ProfileFit, ProfileModel, fit_profile};
+use crate::fresnel::normal_transmittance;
+use crate::profile::{ChannelFit, Profile, ProfileFit, fit_profile};
 use crate::rectified::{Rectified, StripeEntry};
+use crate::scaled_stripe::ScaledStripe;
+use crate::subsurface::ProfileModel;
 
 /// A channel's I_D(d) as the capture sees it: per incident flux of a
 /// normal stripe, T(0) times the per-entered profile of the fit's model
@@ -34,7 +36,7 @@ impl EnteringStripe {
         EnteringStripe {
             table: model.stripe_table(alpha_prime, eta, sigma_t_prime * d_max),
             sigma_t_prime,
-            t_in: dipole::normal_transmittance(eta),
+            t_in: normal_transmittance(eta),
         }
     }
     pub(super) fn stripe(&self, d: f64) -> f64 {

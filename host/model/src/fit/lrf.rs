@@ -7,9 +7,10 @@ use rayon::prelude::*;
 
 use super::stripes::f32v;
 use crate::ModelError;
-use crate::dipole::{self, DipoleParams};
+use crate::fresnel::normal_transmittance;
 use crate::model::{EntranceFunction, ExitingFunction, LocalReflectance, LrfSample, Texture};
 use crate::rectified::Rectified;
+use crate::subsurface::DipoleParams;
 
 /// The LRF of every lamp image of `data` over `window` ([i0, j0, width,
 /// height] of the rectified grid), given the fitted global term, f(w_i) and
@@ -26,7 +27,7 @@ pub(super) fn fit_lrf(
     let grid = data.index.grid;
     let [i0, j0, ww, wh] = window.map(|x| x as usize);
     // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
-    let t_in = dipole::normal_transmittance(dipole.eta);
+    let t_in = normal_transmittance(dipole.eta);
     // The texel's own area as an equal-area disc: the paper's x_i != x_o.
     let r0 = grid.texel_mm / PI.sqrt();
     let subsurface = dipole.subsurface();

@@ -23,6 +23,7 @@
 //! transform of the same data the radial profile R_d(r) the renderer uses.
 //! Checked against Chandrasekhar's exact index-matched reflectance and
 //! against sim-light's Monte Carlo (tests/tests/model_mc_profile.rs).
+//! J0 and the transforms over it are in [`crate::special`].
 
 use std::f64::consts::PI;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -30,42 +31,9 @@ use std::sync::{Arc, Mutex, OnceLock};
 use rayon::prelude::*;
 
 use crate::ModelError;
-use crate::dipole::fresnel_dielectric;
-use crate::quad;
-
-/// Bessel J0 (Abramowitz & Stegun 9.4.1 and 9.4.3, |error| < 5e-8).
-pub fn bessel_j0(x: f64) -> f64 {
-    let x = x.abs();
-    if x <= 3.0 {
-        let y = (x / 3.0).powi(2);
-        1.0 + y
-            * (-2.249_999_7
-                + y * (1.265_620_8
-                    + y * (-0.316_386_6
-                        + y * (0.044_447_9 + y * (-0.003_944_4 + y * 0.000_210_0)))))
-    } else {
-        let y = 3.0 / x;
-        let f0 = 0.797_884_56
-            + y * (-0.000_000_77
-                + y * (-0.005_527_40
-                    + y * (-0.000_095_12
-                        + y * (0.001_372_37 + y * (-0.000_728_05 + y * 0.000_144_76)))));
-        let theta = x - std::f64::consts::FRAC_PI_4
-            + y * (-0.041_663_97
-                + y * (-0.000_039_54
-                    + y * (0.002_625_73
-                        + y * (-0.000_541_25 + y * (-0.000_293_33 + y * 0.000_135_58)))));
-        f0 * theta.cos() / x.sqrt()
-    }
-}
-
-/// 4-point Gauss-Legendre on [-1, 1].
-const GL4: [(f64, f64); 4] = [
-    (-0.861_136_311_594_052_6, 0.347_854_845_137_453_9),
-    (-0.339_981_043_584_856_3, 0.652_145_154_862_546_1),
-    (0.339_981_043_584_856_3, 0.652_145_154_862_546_1),
-    (0.861_136_311_594_052_6, 0.347_854_845_137_453_9),
-];
+use crate::fresnel::fresnel_dielectric;
+use crate::quad::{self, GL4};
+use crate::special::{bessel_j0, filon_cos, hankel_j0};
 
 /// Direction cosines μ in (0, 1) with weights and the internal Fresnel
 /// reflectance F(μ): composite Gauss-Legendre, panels refined towards
@@ -776,38 +744,6 @@ impl RadialProfile {
     }
 }
 
-/// ∫_0^∞ f(k) J0(kx) k dk with f linear between the grid's nodes, by
-/// 4-point Gauss-Legendre on panels of at most a quarter period of J0, and
-/// beyond the last node K the asymptotic series
-/// -f(K) K J1(Kx)/x - f'(K) K J0(Kx)/x² (as in [`filon_cos`]).
-fn hankel_j0(k: &[f64], f: &[f64], x: f64) -> f64 {
-    let max_h = if x > 0.0 { 0.5 * PI / x } else { f64::INFINITY };
-    let mut sum = 0.0;
-    for i in 0..k.len() - 1 {
-        let (k0, k1) = (k[i], k[i + 1]);
-        let n = ((k1 - k0) / max_h).ceil().max(1.0) as usize;
-        let h = (k1 - k0) / n as f64;
-        let slope = (f[i + 1] - f[i]) / (k1 - k0);
-        for j in 0..n {
-            let mid = k0 + (j as f64 + 0.5) * h;
-            for &(t, w) in &GL4 {
-                let kk = mid + 0.5 * h * t;
-                sum += 0.5 * h * w * (f[i] + slope * (kk - k0)) * kk * bessel_j0(kk * x);
-            }
-        }
-    }
-    let n = k.len();
-    if n >= 2 && k[n - 1] * x > 4.0 * PI {
-        let (kk, fk) = (k[n - 1], f[n - 1]);
-        let slope = (f[n - 1] - f[n - 2]) / (k[n - 1] - k[n - 2]);
-        // J1 = -J0', by a central difference.
-        let z = kk * x;
-        let j1 = (bessel_j0(z - 1e-4) - bessel_j0(z + 1e-4)) / 2e-4;
-        sum -= fk * kk * j1 / x + slope * kk * bessel_j0(z) / (x * x);
-    }
-    sum
-}
-
 /// Single scattering of a unit-albedo normal pencil beam at distance x:
 /// ∫ e^{-t} (1 - F(μ)) μ e^{-d} / (4π d²) dt, d² = x² + t², μ = t/d.
 fn single_point(eta: f64, x: f64) -> f64 {
@@ -855,39 +791,6 @@ fn single_line(eta: f64, x: f64) -> f64 {
     quad::integrate(outer, 0.0, 1.0, 1e-6, 1e-300, 200)
 }
 
-/// ∫_0^∞ f(k) cos(kx) dk: Filon's rule over the grid (f linear between
-/// nodes), and beyond its last node the first two terms of the asymptotic
-/// series, -f(K) sin(Kx)/x - f'(K) cos(Kx)/x², which cancel the ripple of
-/// period 2π/K that cutting the integral off would leave (valid for
-/// Kx >> 1; closer to the line, within 0.2 mfp, the cut stays).
-fn filon_cos(k: &[f64], f: &[f64], x: f64) -> f64 {
-    let mut sum = 0.0;
-    for i in 0..k.len() - 1 {
-        let (k0, k1, f0, f1) = (k[i], k[i + 1], f[i], f[i + 1]);
-        let h = k1 - k0;
-        if x * h < 1e-3 {
-            // Trapezoid when cos barely turns over the segment.
-            sum += 0.5 * h * (f0 * (k0 * x).cos() + f1 * (k1 * x).cos());
-            continue;
-        }
-        let slope = (f1 - f0) / h;
-        let (s0, s1, c0, c1) = (
-            (k0 * x).sin(),
-            (k1 * x).sin(),
-            (k0 * x).cos(),
-            (k1 * x).cos(),
-        );
-        sum += (f1 * s1 - f0 * s0) / x + slope * (c1 - c0) / (x * x);
-    }
-    let n = k.len();
-    if n >= 2 && k[n - 1] * x > 4.0 * PI {
-        let (kk, fk) = (k[n - 1], f[n - 1]);
-        let slope = (f[n - 1] - f[n - 2]) / (k[n - 1] - k[n - 2]);
-        sum -= fk * (kk * x).sin() / x + slope * (kk * x).cos() / (x * x);
-    }
-    sum
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -911,23 +814,6 @@ mod tests {
             r[0] > 1.15 * HalfSpace::shared(1.3).total_reflectance(0.68),
             "{r:?}"
         );
-    }
-
-    #[test]
-    fn j0_matches_its_integral() {
-        for &x in &[0.0, 0.5, 2.9, 3.1, 7.0, 30.0] {
-            let n = 4000;
-            let v: f64 = (0..n)
-                .map(|i| ((i as f64 + 0.5) / n as f64 * PI).sin())
-                .map(|s| (x * s).cos())
-                .sum::<f64>()
-                / n as f64;
-            assert!(
-                (bessel_j0(x) - v).abs() < 1e-7,
-                "{x}: {} vs {v}",
-                bessel_j0(x)
-            );
-        }
     }
 
     /// Chandrasekhar's H-function of isotropic scattering, from
@@ -996,9 +882,9 @@ mod tests {
         // less leaves along the normal, more per radiance seen there.
         for eta in [1.3, 1.5] {
             let hs = HalfSpace::shared(eta);
-            let fa = crate::dipole::fresnel_hemispherical_average(eta);
+            let fa = crate::fresnel::fresnel_hemispherical_average(eta);
             for cos in [1.0, 0.62] {
-                let iso = crate::dipole::exitance_per_radiance(cos, eta, fa);
+                let iso = crate::fresnel::exitance_per_radiance(cos, eta, fa);
                 let white = hs.emergent(1.0).exitance_per_radiance(cos);
                 assert!(
                     (white / iso - 1.0).abs() < 0.01,
