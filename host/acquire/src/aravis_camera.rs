@@ -9,12 +9,18 @@
 //!
 //! Trigger source: a hardware line on the rig (`Line1` by default: the
 //! Dragonfly-class cameras' opto-isolated input the MCU drives), or
-//! `Software` (the fake camera, tests) where [`AravisCamera::software_trigger`]
-//! fires a frame.
+//! `Software`, for a camera with no wire to the MCU's trigger lines (a USB3
+//! camera without trigger wiring, Aravis's fake GigE camera). A software
+//! camera is fired by the host when the MCU reports that its line fired
+//! ([`crate::soft_trigger`], through [`AravisCamera::trigger_handle`]), or
+//! by [`AravisCamera::software_trigger`]. Triggers are queued and fired one
+//! at a time, the next only once the previous one's frame has arrived:
+//! cameras ignore (or, like the fake camera, merge) a trigger that comes
+//! while a frame is being taken, and a lost frame must not shift the tags.
 
 use std::collections::VecDeque;
 use std::sync::mpsc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use aravis::prelude::*;
 use tokio::sync::oneshot;
@@ -52,7 +58,24 @@ enum Request {
     Arm(Vec<u64>, oneshot::Sender<Result<(), CameraError>>),
     Next(Duration, oneshot::Sender<Result<Frame, CameraError>>),
     Disarm(oneshot::Sender<Result<(), CameraError>>),
-    SoftwareTrigger(oneshot::Sender<Result<(), CameraError>>),
+    /// Fire a software trigger (the MCU's line fired at this time, us, if known).
+    Fire(
+        Option<u64>,
+        Option<oneshot::Sender<Result<(), CameraError>>>,
+    ),
+}
+
+/// Fires one software-triggered camera from another thread or task.
+#[derive(Clone)]
+pub struct TriggerHandle {
+    tx: mpsc::Sender<Request>,
+}
+
+impl crate::soft_trigger::SoftwareTrigger for TriggerHandle {
+    fn fire(&self, at_us: u64) {
+        // A closed camera has nothing to fire.
+        let _ = self.tx.send(Request::Fire(Some(at_us), None));
+    }
 }
 
 /// A GenICam camera on its worker thread.
@@ -112,9 +135,18 @@ impl AravisCamera {
         })
     }
 
-    /// Fires one frame (trigger source `Software` only).
+    /// Queues one software trigger (trigger source `Software` only); the
+    /// answer comes once it is queued, the frame through `next_frame`.
     pub fn software_trigger(&mut self) -> BoxFuture<'static, Result<(), CameraError>> {
-        self.request(Request::SoftwareTrigger)
+        self.request(|t| Request::Fire(None, Some(t)))
+    }
+
+    /// A handle that fires this camera's software trigger, for the relay of
+    /// the MCU's trigger-fired events ([`crate::soft_trigger::relay_triggers`]).
+    pub fn trigger_handle(&self) -> TriggerHandle {
+        TriggerHandle {
+            tx: self.tx.clone(),
+        }
     }
 }
 
@@ -136,6 +168,13 @@ impl Camera for AravisCamera {
     }
 }
 
+/// How often the worker looks for new requests while it waits for a frame.
+const POLL: Duration = Duration::from_millis(5);
+
+/// Longest wait for a software trigger's frame beyond its exposure: after it
+/// the frame counts as lost (and its tag with it).
+const TRIGGER_GRACE: Duration = Duration::from_secs(3);
+
 struct Worker {
     index: u8,
     camera: aravis::Camera,
@@ -145,6 +184,20 @@ struct Worker {
     settings: Option<CameraSettings>,
     tags: VecDeque<u64>,
     counter: u64,
+    /// Trigger source `Software`: the host fires the frames.
+    software: bool,
+    /// Software triggers not fired yet (MCU time of the line's rise, if known).
+    queued: VecDeque<Option<u64>>,
+    /// The software trigger whose frame is awaited, and when it was fired.
+    in_flight: Option<(Option<u64>, Instant)>,
+    /// Frames (or their failures) of the current arming not yet asked for.
+    ready: VecDeque<Result<Frame, CameraError>>,
+    /// A `next_frame` waiting: its deadline and where the answer goes.
+    waiter: Option<(
+        Instant,
+        Duration,
+        oneshot::Sender<Result<Frame, CameraError>>,
+    )>,
 }
 
 impl Worker {
@@ -179,7 +232,12 @@ impl Worker {
         camera
             .set_acquisition_mode(aravis::AcquisitionMode::Continuous)
             .map_err(driver)?;
-        camera.set_trigger(&cfg.trigger_source).map_err(driver)?;
+        camera
+            .set_trigger(&cfg.trigger_source)
+            .map_err(|e| CameraError::Unsupported {
+                camera: cfg.index,
+                what: format!("trigger source {}: {e}", cfg.trigger_source),
+            })?;
         let (w, h) = camera.sensor_size().map_err(driver)?;
         let info = CameraInfo {
             index: cfg.index,
@@ -202,6 +260,11 @@ impl Worker {
             settings: None,
             tags: VecDeque::new(),
             counter: 0,
+            software: cfg.trigger_source.eq_ignore_ascii_case("software"),
+            queued: VecDeque::new(),
+            in_flight: None,
+            ready: VecDeque::new(),
+            waiter: None,
         };
         worker.refill(worker.buffers)?;
         worker.camera.start_acquisition().map_err(driver)?;
@@ -224,31 +287,207 @@ impl Worker {
         Ok(())
     }
 
+    /// Serves requests; while a frame is awaited (asked for, or a software
+    /// trigger in flight) it polls the stream between requests.
     fn serve(mut self, rx: mpsc::Receiver<Request>) {
-        while let Ok(req) = rx.recv() {
-            match req {
-                Request::Configure(s, t) => {
-                    let _ = t.send(self.configure(s));
+        loop {
+            self.fire_next();
+            let busy = self.waiter.is_some() || self.in_flight.is_some();
+            if busy {
+                self.poll_stream(POLL);
+                loop {
+                    match rx.try_recv() {
+                        Ok(req) => self.handle(req),
+                        Err(mpsc::TryRecvError::Empty) => break,
+                        Err(mpsc::TryRecvError::Disconnected) => return self.stop(),
+                    }
                 }
-                Request::Arm(tags, t) => {
-                    self.drain();
-                    self.tags = tags.into();
-                    let _ = t.send(Ok(()));
+            } else {
+                match rx.recv() {
+                    Ok(req) => self.handle(req),
+                    Err(_) => return self.stop(),
                 }
-                Request::Next(timeout, t) => {
-                    let _ = t.send(self.next(timeout));
+            }
+            self.answer_waiter();
+        }
+    }
+
+    fn stop(self) {
+        let _ = self.camera.stop_acquisition();
+    }
+
+    fn handle(&mut self, req: Request) {
+        match req {
+            Request::Configure(s, t) => {
+                let _ = t.send(self.configure(s));
+            }
+            Request::Arm(tags, t) => {
+                self.forget();
+                self.tags = tags.into();
+                let _ = t.send(Ok(()));
+            }
+            Request::Next(timeout, t) => {
+                if self.ready.is_empty() && self.tags.is_empty() {
+                    let _ = t.send(Err(CameraError::NotArmed(self.index)));
+                } else {
+                    self.waiter = Some((Instant::now() + timeout, timeout, t));
                 }
-                Request::Disarm(t) => {
-                    self.tags.clear();
-                    self.drain();
-                    let _ = t.send(Ok(()));
-                }
-                Request::SoftwareTrigger(t) => {
-                    let _ = t.send(self.camera.software_trigger().map_err(driver));
+            }
+            Request::Disarm(t) => {
+                self.forget();
+                let _ = t.send(Ok(()));
+            }
+            Request::Fire(at_us, t) => {
+                let r = if self.software {
+                    self.queued.push_back(at_us);
+                    Ok(())
+                } else {
+                    Err(CameraError::Unsupported {
+                        camera: self.index,
+                        what: "a software trigger: the trigger source is a hardware line".into(),
+                    })
+                };
+                if let Some(t) = t {
+                    let _ = t.send(r);
                 }
             }
         }
-        let _ = self.camera.stop_acquisition();
+    }
+
+    /// Drops the arming: tags, queued triggers, frames not taken. A trigger
+    /// in flight is waited for, so its frame cannot pass for the next arming's.
+    fn forget(&mut self) {
+        self.tags.clear();
+        self.queued.clear();
+        if self.in_flight.is_some() {
+            let until = Instant::now() + self.trigger_wait();
+            while self.in_flight.is_some() && Instant::now() < until {
+                self.poll_stream(POLL);
+            }
+            self.in_flight = None;
+        }
+        self.ready.clear();
+        self.drain();
+    }
+
+    /// How long a software trigger's frame may take.
+    fn trigger_wait(&self) -> Duration {
+        let exposure = self.settings.map_or(0.0, |s| s.exposure_s);
+        Duration::from_secs_f64(exposure.clamp(0.0, 3600.0)) + TRIGGER_GRACE
+    }
+
+    /// Fires the next queued software trigger once the previous frame is in.
+    fn fire_next(&mut self) {
+        if let Some((_, fired)) = self.in_flight
+            && fired.elapsed() > self.trigger_wait()
+        {
+            // Lost: its tag goes with it, so later frames keep theirs.
+            self.in_flight = None;
+            if self.tags.pop_front().is_some() {
+                self.ready.push_back(Err(CameraError::BadFrame(format!(
+                    "camera {}: no frame came for a software trigger within {:?}",
+                    self.index,
+                    self.trigger_wait()
+                ))));
+            }
+        }
+        if self.in_flight.is_some() {
+            return;
+        }
+        let Some(at_us) = self.queued.pop_front() else {
+            return;
+        };
+        match self.camera.software_trigger() {
+            Ok(()) => self.in_flight = Some((at_us, Instant::now())),
+            Err(e) => {
+                if self.tags.pop_front().is_some() {
+                    self.ready.push_back(Err(driver(e)));
+                }
+            }
+        }
+    }
+
+    /// Answers a waiting `next_frame` with the next frame, or its timeout.
+    fn answer_waiter(&mut self) {
+        let Some((deadline, timeout, _)) = &self.waiter else {
+            return;
+        };
+        let answer = if let Some(r) = self.ready.pop_front() {
+            r
+        } else if Instant::now() >= *deadline {
+            Err(CameraError::Timeout {
+                camera: self.index,
+                timeout: *timeout,
+            })
+        } else {
+            return;
+        };
+        if let Some((_, _, t)) = self.waiter.take() {
+            let _ = t.send(answer);
+        }
+    }
+
+    /// Returns finished buffers to the pool without using them.
+    fn drain(&self) {
+        while let Some(b) = self.stream().try_pop_buffer() {
+            self.stream().push_buffer(b);
+        }
+    }
+
+    /// Takes one finished buffer, if one comes within `wait`, as the frame
+    /// of the next tag (dropped when nothing is armed).
+    fn poll_stream(&mut self, wait: Duration) {
+        let camera = self.index;
+        let Some(buf) = self
+            .stream()
+            .timeout_pop_buffer(wait.as_micros().min(u64::MAX as u128) as u64)
+        else {
+            return;
+        };
+        let fired = self.in_flight.take();
+        let status = buf.status();
+        let (w, h) = (buf.image_width() as u32, buf.image_height() as u32);
+        let data = buf.image_data();
+        let timestamp_ns = buf.timestamp();
+        self.stream().push_buffer(buf);
+        let (Some(settings), Some(tag)) = (self.settings, self.tags.front().copied()) else {
+            return;
+        };
+        if status != aravis::BufferStatus::Success {
+            self.ready.push_back(Err(CameraError::BadFrame(format!(
+                "camera {camera}: buffer status {status:?}"
+            ))));
+            return;
+        }
+        let expect = w as usize * h as usize * self.format.channels();
+        if data.len() < expect {
+            self.ready.push_back(Err(CameraError::BadFrame(format!(
+                "camera {camera}: {} bytes for {w}x{h}",
+                data.len()
+            ))));
+            return;
+        }
+        self.tags.pop_front();
+        self.counter += 1;
+        // A software frame's trigger time is the MCU's, as for a wired camera.
+        let trigger_us = match fired {
+            Some((Some(at_us), _)) => at_us,
+            _ => timestamp_ns / 1000,
+        };
+        self.ready.push_back(Ok(Frame {
+            meta: FrameMeta {
+                camera,
+                tag,
+                trigger_us,
+                exposure_s: settings.exposure_s,
+                gain_db: settings.gain_db,
+                frame_counter: self.counter,
+            },
+            width: w,
+            height: h,
+            format: self.format,
+            data: data[..expect].to_vec(),
+        }));
     }
 
     fn configure(&mut self, s: CameraSettings) -> Result<(), CameraError> {
@@ -289,57 +528,5 @@ impl Worker {
         }
         self.settings = Some(s);
         Ok(())
-    }
-
-    /// Returns finished buffers to the pool without using them.
-    fn drain(&self) {
-        while let Some(b) = self.stream().try_pop_buffer() {
-            self.stream().push_buffer(b);
-        }
-    }
-
-    fn next(&mut self, timeout: Duration) -> Result<Frame, CameraError> {
-        let camera = self.index;
-        let Some(&tag) = self.tags.front() else {
-            return Err(CameraError::NotArmed(camera));
-        };
-        let settings = self.settings.ok_or(CameraError::NotArmed(camera))?;
-        let buf = self
-            .stream()
-            .timeout_pop_buffer(timeout.as_micros().min(u64::MAX as u128) as u64)
-            .ok_or(CameraError::Timeout { camera, timeout })?;
-        let status = buf.status();
-        let (w, h) = (buf.image_width() as u32, buf.image_height() as u32);
-        let data = buf.image_data();
-        let timestamp_ns = buf.timestamp();
-        self.stream().push_buffer(buf);
-        if status != aravis::BufferStatus::Success {
-            return Err(CameraError::BadFrame(format!(
-                "camera {camera}: buffer status {status:?}"
-            )));
-        }
-        let expect = w as usize * h as usize * self.format.channels();
-        if data.len() < expect {
-            return Err(CameraError::BadFrame(format!(
-                "camera {camera}: {} bytes for {w}x{h}",
-                data.len()
-            )));
-        }
-        self.tags.pop_front();
-        self.counter += 1;
-        Ok(Frame {
-            meta: FrameMeta {
-                camera,
-                tag,
-                trigger_us: timestamp_ns / 1000,
-                exposure_s: settings.exposure_s,
-                gain_db: settings.gain_db,
-                frame_counter: self.counter,
-            },
-            width: w,
-            height: h,
-            format: self.format,
-            data: data[..expect].to_vec(),
-        })
     }
 }

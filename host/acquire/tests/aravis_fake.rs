@@ -113,3 +113,49 @@ async fn fake_gv_camera_software_trigger() {
     // Not armed: no frame is invented.
     assert!(cam.next_frame(Duration::from_millis(100)).await.is_err());
 }
+
+/// Triggers that come faster than the camera takes frames (the fake camera
+/// looks for one every 40 ms and merges the rest) are queued, one frame each,
+/// tags in order: what the MCU's trigger-fired events need.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs arv-fake-gv-camera-0.8; run by host/acquire/ci-aravis.sh"]
+async fn fake_gv_camera_queued_software_triggers() {
+    use qhm_acquire::soft_trigger::SoftwareTrigger;
+    let _fake = start_fake();
+    let mut cam = open("Software");
+    cam.configure(CameraSettings {
+        exposure_s: 0.001,
+        gain_db: 0.0,
+        binning: 1,
+    })
+    .await
+    .unwrap();
+    let tags = vec![0xB1u64, 0xB2, 0xB3, 0xB4];
+    cam.arm(tags.clone()).await.unwrap();
+    let handle = cam.trigger_handle();
+    for k in 0..tags.len() as u64 {
+        handle.fire(1000 + k);
+    }
+    for (k, &tag) in tags.iter().enumerate() {
+        let f = cam
+            .next_frame(Duration::from_secs(5))
+            .await
+            .expect("one frame per queued trigger");
+        assert_eq!(f.meta.tag, tag);
+        assert_eq!(f.meta.trigger_us, 1000 + k as u64, "the MCU's trigger time");
+    }
+    // No trigger, no frame: nothing beyond the four is delivered.
+    cam.arm(vec![0xC1]).await.unwrap();
+    assert!(cam.next_frame(Duration::from_millis(300)).await.is_err());
+}
+
+/// A camera on a hardware line refuses a software trigger instead of
+/// pretending (so a missing `,trigger=software` shows at once).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs arv-fake-gv-camera-0.8; run by host/acquire/ci-aravis.sh"]
+async fn fake_gv_camera_on_a_line_refuses_software_triggers() {
+    let _fake = start_fake();
+    let mut cam = open("Line0");
+    let e = cam.software_trigger().await.unwrap_err().to_string();
+    assert!(e.contains("hardware line"), "{e}");
+}

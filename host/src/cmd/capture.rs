@@ -54,8 +54,10 @@ pub struct RunArgs {
     pub port: Option<PathBuf>,
     #[arg(long, default_value_t = DEFAULT_BAUD)]
     pub baud: u32,
-    /// Real rig: camera on arc position N is GenICam device ID (repeat: 1=ID1 2=ID2 ...).
-    #[arg(long = "camera", value_name = "N=DEVICE")]
+    /// Real rig: camera on arc position N is GenICam device ID (repeat: 1=ID1 2=ID2 ...);
+    /// `N=DEVICE,trigger=software` fires a camera not wired to the MCU's trigger
+    /// lines by software on the MCU's trigger event (`trigger=Line2`: another input line).
+    #[arg(long = "camera", value_name = "N=DEVICE[,trigger=software]")]
     pub cameras: Vec<String>,
     /// Sampling density: ci, default or paper.
     #[arg(long, default_value = "default")]
