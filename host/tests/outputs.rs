@@ -8,7 +8,7 @@ use cli_util::{run as qhm, snapshot};
 
 use std::path::{Path, PathBuf};
 
-use qhm_model::synth::{SynthSpec, write_synthetic};
+use qhm_model::synthetic_dataset::{SynthSpec, write_synthetic};
 use qhm_model::{DipoleParams, MaterialModel};
 
 fn ok(args: &[impl AsRef<std::ffi::OsStr> + std::fmt::Debug]) -> String {

@@ -1,7 +1,7 @@
 //! `qhm report`'s page in headless Chromium, loaded from disk with no
 //! network: no console or script errors, every image decodes, and a
 //! screenshot is not blank. The model is fitted from a small synthetic
-//! capture (qhm_model::synth) in well under a second. The checker itself is
+//! capture (qhm_model::synthetic_dataset) in well under a second. The checker itself is
 //! proven on a deliberately broken copy of the page (a corrupt image and a
 //! console error) and on a blank page. Skips, saying so, without Chromium.
 //!
@@ -12,7 +12,7 @@ use std::process::Command;
 
 use qhm_model::ProfileModel;
 use qhm_model::fit::{FitOptions, fit_capture};
-use qhm_model::synth::{SynthSpec, write_synthetic};
+use qhm_model::synthetic_dataset::{SynthSpec, write_synthetic};
 use qhm_model::{DipoleParams, MaterialModel};
 
 fn chromium() -> Option<PathBuf> {

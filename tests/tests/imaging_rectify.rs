@@ -12,7 +12,7 @@ use qhm_imaging::pipeline::{RectifyOptions, Shot, ShotLight, rectify_capture};
 use qhm_imaging::rectified::{read_image, read_index};
 use qhm_imaging::rectify::{Grid, sample_to_world};
 use qhm_imaging::response::ResponseCurve;
-use qhm_imaging::{hdr::MergeOptions, synth};
+use qhm_imaging::{hdr::MergeOptions, synthetic_calibration};
 
 /// Radiance texture on the sample plane (sample frame, mm): smooth, with a
 /// bright square that clips every exposure.
@@ -50,7 +50,7 @@ fn rectified_dataset_aligns_within_half_a_texel() {
     let (w, h) = (512usize, 384usize);
     let theta = 0.9;
     let axis = DVec3::Z;
-    let resp = synth::Response::gamma_s_curve(1.0, 0.0);
+    let resp = synthetic_calibration::Response::gamma_s_curve(1.0, 0.0);
     let times = [0.0125, 0.05];
     let to_world = sample_to_world(axis, theta);
     let mut frames = Vec::new();

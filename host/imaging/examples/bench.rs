@@ -14,7 +14,7 @@ use qhm_imaging::hdr::{self, MergeOptions};
 use qhm_imaging::image::Image8;
 use qhm_imaging::rectify::{self, Grid};
 use qhm_imaging::response::{self, DmOptions, MnOptions};
-use qhm_imaging::{exr_io, synth};
+use qhm_imaging::{exr_io, synthetic_calibration};
 
 /// Brackets of a paper-scale capture (qhm-acquire's `paper` plan: pass 1
 /// 3 colours x 5 clamps x 12 arc x 4 turntable x 32 scan x 4 cameras; pass 2
@@ -49,10 +49,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&out)?;
     let (w, h) = (1024usize, 768usize);
     let times = [0.002, 0.008, 0.032, 0.128];
-    let resp = synth::Response::gamma_s_curve(2.2, 0.08);
+    let resp = synthetic_calibration::Response::gamma_s_curve(2.2, 0.08);
     // Scene scaled so the bracket covers it: ramp_irradiance spans 10^-3.5 .. 10^1.
     let scaled: Vec<f64> = times.iter().map(|t| t * 8.0).collect();
-    let b = synth::bracket_of_ramp(w, h, &scaled, &resp, 0.5, 11);
+    let b = synthetic_calibration::bracket_of_ramp(w, h, &scaled, &resp, 0.5, 11);
     for (k, f) in b.frames.iter().enumerate() {
         image::save_buffer(
             out.join(format!("bracket_{k}.png")),
@@ -107,7 +107,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for y in (0..h).step_by(4) {
                 for x in (0..w).step_by(4) {
                     let v = img.get(x, y, c) as f64;
-                    let e = synth::ramp_irradiance(x, y, w, h, c) * 8.0;
+                    let e = synthetic_calibration::ramp_irradiance(x, y, w, h, c) * 8.0;
                     // Where the longest exposure reaches Z >= 20 and the shortest is below clipping.
                     if v.is_finite() && e * 0.128 > resp.exposure_of(20.0) && e * 0.002 < 1.0 {
                         ratios.push(v / e);

@@ -580,7 +580,7 @@ pub fn reject_outliers(predicted: &[DVec2], mut found: Vec<Option<DVec2>>) -> Ve
 mod tests {
     use super::*;
     use crate::camera::{CameraModel, Intrinsics};
-    use crate::synth::{Checkerboard, render_checkerboard};
+    use crate::synthetic_calibration::{Checkerboard, render_checkerboard};
     use glam::{DMat3, DVec3};
 
     #[test]

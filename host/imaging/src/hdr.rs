@@ -125,13 +125,13 @@ pub fn merge(
 mod tests {
     use super::*;
     use crate::response::{MnOptions, fit_mitsunaga_nayar};
-    use crate::synth;
+    use crate::synthetic_calibration;
 
     #[test]
     fn merged_radiance_is_linear_and_saturation_is_flagged() {
-        let resp = synth::Response::gamma_s_curve(2.2, 0.08);
+        let resp = synthetic_calibration::Response::gamma_s_curve(2.2, 0.08);
         let times = [1.0 / 64.0, 1.0 / 16.0, 1.0 / 4.0, 1.0, 4.0];
-        let b = synth::bracket_of_ramp(160, 120, &times, &resp, 0.5, 3);
+        let b = synthetic_calibration::bracket_of_ramp(160, 120, &times, &resp, 0.5, 3);
         let curves: Vec<_> = (0..3)
             .map(|c| {
                 fit_mitsunaga_nayar(&b, c, MnOptions::default())
@@ -143,7 +143,8 @@ mod tests {
         let hdr = merge(&frames, &b.exposures, &curves, MergeOptions::default()).unwrap();
         // Linear up to one scale per channel: compare ratios to the truth.
         let (w, h) = (160, 120);
-        let refv = hdr.get(80, 60, 1) as f64 / synth::ramp_irradiance(80, 60, w, h, 1);
+        let refv =
+            hdr.get(80, 60, 1) as f64 / synthetic_calibration::ramp_irradiance(80, 60, w, h, 1);
         // Per pixel, 8-bit quantisation through a gamma-2.2 curve is worth several
         // percent at Z ~ 20-40; 6x6 blocks average it out (the read noise dithers).
         let mut worst = 0.0f64;
@@ -154,7 +155,7 @@ mod tests {
                 for y in y0..y0 + 6 {
                     for x in x0..x0 + 6 {
                         got += hdr.get(x, y, 1) as f64;
-                        want += synth::ramp_irradiance(x, y, w, h, 1) * refv;
+                        want += synthetic_calibration::ramp_irradiance(x, y, w, h, 1) * refv;
                     }
                 }
                 worst = worst.max((got / want - 1.0).abs());

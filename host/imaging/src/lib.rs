@@ -32,7 +32,7 @@ pub mod rectified;
 pub mod rectify;
 pub mod response;
 pub mod shards;
-pub mod synth;
+pub mod synthetic_calibration;
 pub mod zhang;
 
 pub use calibration::Calibration;

@@ -460,18 +460,18 @@ pub fn relative_error(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth;
+    use crate::synthetic_calibration;
 
     const VALID: FitRange = FitRange {
         z_min: 20,
         z_max: 245,
     };
 
-    fn bracket() -> (Bracket, synth::Response) {
-        let resp = synth::Response::gamma_s_curve(2.2, 0.08);
+    fn bracket() -> (Bracket, synthetic_calibration::Response) {
+        let resp = synthetic_calibration::Response::gamma_s_curve(2.2, 0.08);
         let times = [1.0 / 64.0, 1.0 / 16.0, 1.0 / 4.0, 1.0, 4.0];
         (
-            synth::bracket_of_ramp(160, 120, &times, &resp, 0.5, 7),
+            synthetic_calibration::bracket_of_ramp(160, 120, &times, &resp, 0.5, 7),
             resp,
         )
     }
@@ -492,9 +492,9 @@ mod tests {
             assert!((r / w - 1.0).abs() < 0.02, "ratio {r}");
         }
         // A linear camera is found as order 1.
-        let lin = synth::Response::gamma_s_curve(1.0, 0.0);
+        let lin = synthetic_calibration::Response::gamma_s_curve(1.0, 0.0);
         let times = [1.0 / 64.0, 1.0 / 16.0, 1.0 / 4.0, 1.0, 4.0];
-        let b = synth::bracket_of_ramp(160, 120, &times, &lin, 0.5, 9);
+        let b = synthetic_calibration::bracket_of_ramp(160, 120, &times, &lin, 0.5, 9);
         let fit = fit_mitsunaga_nayar(&b, 2, MnOptions::default()).unwrap();
         let err = relative_error(&|z| fit.curve.linear(z), &|z| lin.exposure_of(z), VALID);
         assert!(err < 0.01, "linear camera: {err}, order {}", fit.order);

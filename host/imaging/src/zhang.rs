@@ -498,7 +498,7 @@ pub fn calibrate(views: &[PlanarView], opts: ZhangOptions) -> Result<Calibrated>
 mod tests {
     use super::*;
     use crate::corners::detect_checkerboard;
-    use crate::synth::{Checkerboard, render_checkerboard};
+    use crate::synthetic_calibration::{Checkerboard, render_checkerboard};
 
     fn truth() -> Intrinsics {
         Intrinsics {
@@ -642,8 +642,8 @@ mod tests {
                 let w = DMat3::from_rotation_z(theta) * shift + r * DVec3::new(o.x, o.y, 0.0);
                 let p = cam.project(w).unwrap();
                 let n = DVec2::new(
-                    crate::synth::normal(&mut rng),
-                    crate::synth::normal(&mut rng),
+                    crate::synthetic_calibration::normal(&mut rng),
+                    crate::synthetic_calibration::normal(&mut rng),
                 );
                 v.object.push(*o);
                 v.image.push(p + 0.05 * n);

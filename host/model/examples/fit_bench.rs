@@ -13,7 +13,7 @@ use qhm_model::fit::{FitOptions, fit_capture};
 use qhm_model::fresnel::normal_transmittance;
 use qhm_model::profile::{Norm, Profile, fit_profile};
 use qhm_model::radiative_transfer::HalfSpace;
-use qhm_model::synth::{SynthSpec, write_synthetic};
+use qhm_model::synthetic_dataset::{SynthSpec, write_synthetic};
 
 fn main() {
     // One channel: whole milk red (Jensen et al. 2001), 400 profile points

@@ -5,7 +5,7 @@
 use qhm_model::DipoleParams;
 use qhm_model::dipole::{Dipole, total_reflectance};
 use qhm_model::profile::Profile;
-use qhm_model::synth::{SynthSpec, write_synthetic};
+use qhm_model::synthetic_dataset::{SynthSpec, write_synthetic};
 
 fn main() {
     let Some(out) = std::env::args().nth(1) else {

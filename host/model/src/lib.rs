@@ -42,4 +42,4 @@ pub mod fit;
 pub mod rectified;
 pub mod report;
 pub mod streaks;
-pub mod synth;
+pub mod synthetic_dataset;

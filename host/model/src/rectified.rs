@@ -51,7 +51,7 @@ impl Rectified {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::{SynthSpec, write_synthetic};
+    use crate::synthetic_dataset::{SynthSpec, write_synthetic};
 
     #[test]
     fn a_synthetic_capture_opens_and_a_damaged_one_is_an_error() {

@@ -1441,7 +1441,7 @@ pub fn write_report_with(
 mod tests {
     use super::*;
     use crate::fit::{FitOptions, fit_capture};
-    use crate::synth::{SynthSpec, write_synthetic};
+    use crate::synthetic_dataset::{SynthSpec, write_synthetic};
 
     #[test]
     fn ticks_are_round_numbers() {
@@ -1514,7 +1514,7 @@ mod tests {
         assert!(!html.contains("NaN"));
         // The lamp images come from the capture, the calibration from its index.
         assert!(html.contains("rectified lamp images of"), "lamp source");
-        assert!(html.contains("synthetic (qhm_model::synth)"));
+        assert!(html.contains("synthetic (qhm_model::synthetic_dataset)"));
         assert!(html.contains("dipole term (R") && html.contains("&nbsp;capture<"));
         // f_v tiles are labelled with their view.
         assert!(

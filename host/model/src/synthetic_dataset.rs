@@ -230,7 +230,7 @@ pub fn write_synthetic(capture_dir: &Path, spec: &SynthSpec) -> Result<(), Model
             stripe: stripes,
             lamp: lamps,
             calibration: Some(crate::rectified::CalibrationSummary {
-                source: "synthetic (qhm_model::synth)".into(),
+                source: "synthetic (qhm_model::synthetic_dataset)".into(),
                 ..Default::default()
             }),
         },
