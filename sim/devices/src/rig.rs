@@ -72,21 +72,7 @@ pub struct SimRigConfig {
 
 impl SimRigConfig {
     pub fn new(sample: &str, scale: Scale, seed: u64) -> SimRigConfig {
-        let mut quality = match scale {
-            // Binned 4, not the sim's ci 8: at 0.7 mm pixels the stripe's
-            // near field blurs into the fitted profile (a' and s'_t biased).
-            Scale::Ci => SimQuality {
-                downscale: 4,
-                ..SimQuality::ci()
-            },
-            Scale::Default => SimQuality::preview(),
-            Scale::Paper => SimQuality::default_scale(),
-        };
-        // Pass 1's oblique stripes feed only band fluxes (see
-        // `SimQuality::oblique_laser_photons`): a quarter of the photons.
-        if scale != Scale::Paper {
-            quality.oblique_laser_photons = Some(quality.laser_photons / 4);
-        }
+        let quality = capture_quality(scale);
         SimRigConfig {
             sample: sample.to_string(),
             quality,
@@ -100,21 +86,73 @@ impl SimRigConfig {
 
     /// The simulated rig for the calibration capture of `scale`
     /// (`qhm_acquire::cal_plan`): the same rig (seed) as the capture's, the
-    /// colour pattern on the turntable to begin with. Targets are rendered
-    /// at `preview` quality or better whatever the scale (checkerboard
-    /// corners need pixels) and with at least `CALIBRATION_LAMP_PHOTONS`.
+    /// colour pattern on the turntable to begin with, at
+    /// [`calibration_quality`].
     pub fn calibration(scale: Scale, seed: u64) -> SimRigConfig {
-        let quality = match scale {
-            Scale::Ci | Scale::Default => SimQuality::preview(),
-            Scale::Paper => SimQuality::default_scale(),
-        };
         SimRigConfig {
-            quality: SimQuality {
-                lamp_photons: quality.lamp_photons.max(CALIBRATION_LAMP_PHOTONS),
-                ..quality
-            },
+            quality: calibration_quality(scale),
             ..SimRigConfig::new(qhm_acquire::cal_plan::COLOUR_PATTERN, scale, seed)
         }
+    }
+}
+
+/// The simulated rig's sim quality at each capture scale. sim-light's
+/// quality ladder (`SimQuality::ci`, `preview`, `default_scale`, `final_scale`)
+/// names image sizes and photon budgets, not capture scales: the default
+/// capture renders at its `preview` rung and the paper capture at its
+/// `default_scale` rung. These functions say which, by the capture's name.
+pub fn capture_quality(scale: Scale) -> SimQuality {
+    match scale {
+        Scale::Ci => ci_capture_quality(),
+        Scale::Default => default_capture_quality(),
+        Scale::Paper => paper_capture_quality(),
+    }
+}
+
+/// The ci capture's: sim-light's ci photon budget binned 4, not its ci 8
+/// (at 0.7 mm pixels the stripe's near field blurs into the fitted profile:
+/// a' and s'_t biased), with a quarter of the photons for pass 1's oblique
+/// stripes.
+pub fn ci_capture_quality() -> SimQuality {
+    with_oblique_quarter(SimQuality {
+        downscale: 4,
+        ..SimQuality::ci()
+    })
+}
+
+/// The default capture's (the demo's): sim-light's `preview` rung, 256 x 192,
+/// with a quarter of the photons for pass 1's oblique stripes.
+pub fn default_capture_quality() -> SimQuality {
+    with_oblique_quarter(SimQuality::preview())
+}
+
+/// The paper capture's: sim-light's full-frame `default_scale` rung,
+/// 1024 x 768, every stripe at the full photon budget.
+pub fn paper_capture_quality() -> SimQuality {
+    SimQuality::default_scale()
+}
+
+/// Pass 1's oblique stripes feed only band fluxes (see
+/// `SimQuality::oblique_laser_photons`): a quarter of the photons.
+fn with_oblique_quarter(quality: SimQuality) -> SimQuality {
+    SimQuality {
+        oblique_laser_photons: Some(quality.laser_photons / 4),
+        ..quality
+    }
+}
+
+/// The calibration capture's for `scale`: the default capture's image size
+/// or better whatever the scale (checkerboard corners need pixels), every
+/// stripe at the full photon budget (laser planes are fitted at every clamp
+/// position), and at least [`CALIBRATION_LAMP_PHOTONS`] per lamp.
+pub fn calibration_quality(scale: Scale) -> SimQuality {
+    let quality = match scale {
+        Scale::Ci | Scale::Default => SimQuality::preview(),
+        Scale::Paper => paper_capture_quality(),
+    };
+    SimQuality {
+        lamp_photons: quality.lamp_photons.max(CALIBRATION_LAMP_PHOTONS),
+        ..quality
     }
 }
 
@@ -718,5 +756,52 @@ impl Hub {
             };
             let _ = j.tx.send((j.generation, Ok(frame)));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Image binning, photons per stripe, per oblique stripe and per lamp.
+    fn budget(q: SimQuality) -> (u32, u64, Option<u64>, u64) {
+        (
+            q.downscale,
+            q.laser_photons,
+            q.oblique_laser_photons,
+            q.lamp_photons,
+        )
+    }
+
+    #[test]
+    fn each_capture_scale_renders_at_its_named_quality() {
+        assert_eq!(
+            budget(capture_quality(Scale::Ci)),
+            (4, 640_000, Some(160_000), 40_000)
+        );
+        assert_eq!(
+            budget(capture_quality(Scale::Default)),
+            (4, 640_000, Some(160_000), 100_000)
+        );
+        assert_eq!(
+            budget(capture_quality(Scale::Paper)),
+            (1, 1_000_000, None, 1_000_000)
+        );
+        assert_eq!(
+            SimRigConfig::new("marble", Scale::Default, 1).quality,
+            default_capture_quality()
+        );
+        // Calibration: the default capture's binning or finer, no oblique
+        // budget, at least a million lamp photons.
+        for scale in [Scale::Ci, Scale::Default] {
+            assert_eq!(
+                budget(calibration_quality(scale)),
+                (4, 640_000, None, 1_000_000)
+            );
+        }
+        assert_eq!(
+            SimRigConfig::calibration(Scale::Paper, 1).quality,
+            paper_capture_quality()
+        );
     }
 }
