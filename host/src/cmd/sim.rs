@@ -134,6 +134,12 @@ pub struct BenchArgs {
     /// Skip the full-size pose timing.
     #[arg(long)]
     pub no_pose: bool,
+    /// Only this medium (whole-milk, sponge-voxel, sponge, bread, rice-cake).
+    #[arg(long)]
+    pub medium: Option<String>,
+    /// Only this many threads (default: 1, then 2).
+    #[arg(long)]
+    pub threads: Option<usize>,
 }
 
 pub fn run(args: SimArgs) -> Result<ExitCode> {
@@ -358,7 +364,23 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
     if b.photons < 1000 || b.photons > 1_000_000_000 {
         bail!("--photons {}: expected 1000..=1e9", b.photons);
     }
-    let report = sim_light::bench::run(b.photons, !b.no_pose)?;
+    if let Some(m) = &b.medium
+        && !sim_light::bench::BENCH_MEDIA
+            .iter()
+            .any(|(name, ..)| name == m)
+    {
+        let known: Vec<&str> = sim_light::bench::BENCH_MEDIA
+            .iter()
+            .map(|(n, ..)| *n)
+            .collect();
+        bail!("--medium {m:?}: expected one of {}", known.join(", "));
+    }
+    let threads = match b.threads {
+        Some(n @ 1..=256) => vec![n],
+        Some(n) => bail!("--threads {n}: expected 1..=256"),
+        None => vec![1, 2],
+    };
+    let report = sim_light::bench::run_with(b.photons, b.medium.as_deref(), &threads, !b.no_pose)?;
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     let cores = std::thread::available_parallelism()
         .map(|n| n.get())
@@ -375,12 +397,27 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
         for r in &report.rows {
             writeln!(
                 out,
-                "{:28} {} thread(s): {:9.0} paths/s, {:6.2} M events/s/core, {:6.1} events/path",
+                "{:28} {} thread(s): {:9.0} paths/s, {:6.2} M events/s/core, {:6.1} events/path{}",
                 r.medium,
                 r.threads,
                 r.paths_per_s,
                 r.events_per_s_per_core / 1e6,
-                r.mean_events_per_path
+                r.mean_events_per_path,
+                r.events_per_cpu_s
+                    .map(|e| format!(", {:6.1} M events per CPU s", e / 1e6))
+                    .unwrap_or_default()
+            )?;
+        }
+        for n in &report.stripe_noise {
+            writeln!(
+                out,
+                "stripe profile, whole milk, {} walk, 1 thread: {:.2} % noise after {} photons in {:.2} CPU s; {:.1} CPU s to {:.1} %",
+                n.walk,
+                n.rel_noise * 100.0,
+                n.photons,
+                n.cpu_seconds,
+                n.cpu_seconds_to_target,
+                n.target_rel_noise * 100.0
             )?;
         }
         for (m, s) in &report.speedup_1_to_2 {

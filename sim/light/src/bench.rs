@@ -1,5 +1,6 @@
 //! `qhm sim bench`: photon paths and scattering events per second, in a
-//! homogeneous and a heterogeneous medium, on 1 and 2 threads. Results are
+//! homogeneous and a heterogeneous medium, on 1 and 2 threads, and the CPU
+//! time a stripe's profile takes to reach a given noise level. Results are
 //! figures, never assertions (the machine is shared).
 
 use std::time::Instant;
@@ -10,7 +11,7 @@ use serde::Serialize;
 use crate::Error;
 use crate::rig::RigTruth;
 use crate::sample::{Coefficients, InclusionDesc, MaterialDesc, Relief, SceneDesc};
-use crate::walk::Source;
+use crate::walk::{ExitGrid, Source};
 use crate::world::{Illumination, LaserOn, SimQuality, World};
 
 /// One medium on one thread count.
@@ -45,6 +46,102 @@ pub struct BenchReport {
     pub full_pose_cpu_seconds: Option<f64>,
     /// Time share of camera splatting in a laser pose (1 thread), in [0, 1].
     pub splat_share: Option<f64>,
+    /// The stripe profile's noise against CPU time, wide and scalar walk.
+    pub stripe_noise: Vec<StripeNoise>,
+}
+
+/// A laser stripe's exit profile in whole milk (green), one thread: its
+/// noise after `photons`, and the CPU time to reach `target` noise.
+#[derive(Debug, Clone, Serialize)]
+pub struct StripeNoise {
+    /// "wide" (the walk renders use) or "scalar" (one photon at a time).
+    pub walk: String,
+    pub photons: u64,
+    pub cpu_seconds: f64,
+    /// RMS over the profile's bins of their relative standard error.
+    pub rel_noise: f64,
+    pub target_rel_noise: f64,
+    /// cpu_seconds (rel_noise / target)^2: noise falls as 1/sqrt(photons).
+    pub cpu_seconds_to_target: f64,
+}
+
+/// Media the benchmark knows: (name, label, channel). Red for the sponges
+/// and cellular media: the channel where foam and voids differ most.
+pub const BENCH_MEDIA: [(&str, &str, usize); 5] = [
+    ("whole-milk", "homogeneous whole-milk", 1),
+    ("sponge-voxel", "index-matched sponge (voxel grid)", 0),
+    ("sponge", "cellular sponge", 0),
+    ("bread", "cellular bread", 0),
+    ("rice-cake", "cellular rice-cake", 0),
+];
+
+/// Relative noise the stripe measurement extrapolates to.
+pub const STRIPE_TARGET_NOISE: f64 = 0.01;
+
+/// The stripe measurement: a 20 mm green stripe falling straight down on
+/// the centre of the 200 x 200 x 100 mm whole-milk slab; its profile across
+/// the stripe, |y| in [0.5, 10] mm in 0.5 mm bins (folded), over |x| < 5 mm,
+/// from `batches` independent runs of photons / batches each, whose spread
+/// gives each bin's standard error.
+pub fn stripe_noise(photons: u64, wide: bool) -> Result<StripeNoise, Error> {
+    let world = medium_world("whole-milk")?;
+    let stripe = Source::Stripe {
+        origin: Vec3::new(0.0, 0.0, 200.0),
+        centre: Vec3::ZERO,
+        dir: Vec3::X,
+        length: 20.0,
+    };
+    let (cell, n) = (0.25f32, 96usize);
+    let batches = 8u64;
+    let per = (photons / batches).max(1000);
+    let p1 = pool(1);
+    let mut profiles = Vec::new();
+    let mut cpu = 0.0;
+    for b in 0..batches {
+        let grid = ExitGrid::new(n, cell);
+        let (_, _, c) =
+            timed(|| p1.install(|| world.trace_with(&stripe, 1, per, 100 + b, Some(&grid), wide)));
+        cpu += c.unwrap_or(0.0);
+        let counts = grid.values();
+        let mut prof = [0.0f64; 19];
+        for j in 0..n {
+            let y = (j as f32 + 0.5) * cell - n as f32 * cell / 2.0;
+            let bin = ((y.abs() - 0.5) / 0.5).floor();
+            if !(0.0..19.0).contains(&bin) {
+                continue;
+            }
+            for i in 0..n {
+                let x = (i as f32 + 0.5) * cell - n as f32 * cell / 2.0;
+                if x.abs() < 5.0 {
+                    prof[bin as usize] += counts[j * n + i] as f64;
+                }
+            }
+        }
+        profiles.push(prof);
+    }
+    let k = batches as f64;
+    let mut sum_sq = 0.0;
+    for bin in 0..19 {
+        let vals: Vec<f64> = profiles.iter().map(|p| p[bin]).collect();
+        let mean = vals.iter().sum::<f64>() / k;
+        let var = vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0);
+        // standard error of the batches' mean, relative to it
+        let rel = if mean > 0.0 {
+            (var / k).sqrt() / mean
+        } else {
+            1.0
+        };
+        sum_sq += rel * rel;
+    }
+    let rel_noise = (sum_sq / 19.0).sqrt();
+    Ok(StripeNoise {
+        walk: if wide { "wide" } else { "scalar" }.into(),
+        photons: per * batches,
+        cpu_seconds: cpu,
+        rel_noise,
+        target_rel_noise: STRIPE_TARGET_NOISE,
+        cpu_seconds_to_target: cpu * (rel_noise / STRIPE_TARGET_NOISE).powi(2),
+    })
 }
 
 /// A homogeneous or heterogeneous preset as a 200 x 200 x 100 mm slab;
@@ -133,18 +230,34 @@ pub fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, Option<f64>) {
 
 /// Run the benchmark; `photons` per measurement (e.g. 200_000).
 pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
+    run_with(photons, None, &[1, 2], full_pose)
+}
+
+/// `run` for one medium of [`BENCH_MEDIA`] (all when None) on the given
+/// thread counts; the stripe measurement runs with whole milk.
+pub fn run_with(
+    photons: u64,
+    medium: Option<&str>,
+    thread_counts: &[usize],
+    full_pose: bool,
+) -> Result<BenchReport, Error> {
+    if let Some(m) = medium
+        && !BENCH_MEDIA.iter().any(|(name, ..)| *name == m)
+    {
+        let known: Vec<&str> = BENCH_MEDIA.iter().map(|(name, ..)| *name).collect();
+        return Err(Error::InvalidField {
+            field: "benchmark medium".into(),
+            reason: format!("{m:?} is not one of {}", known.join(", ")),
+        });
+    }
     let mut rows = Vec::new();
     let pencil = pencil();
-    // red: the channel where the sponge's foam and voids differ most
-    for (label, preset, ch) in [
-        ("homogeneous whole-milk", "whole-milk", 1),
-        ("index-matched sponge (voxel grid)", "sponge-voxel", 0),
-        ("cellular sponge", "sponge", 0),
-        ("cellular bread", "bread", 0),
-        ("cellular rice-cake", "rice-cake", 0),
-    ] {
+    for (preset, label, ch) in BENCH_MEDIA {
+        if medium.is_some_and(|m| m != preset) {
+            continue;
+        }
         let world = medium_world(preset)?;
-        for threads in [1usize, 2] {
+        for &threads in thread_counts {
             let p = pool(threads);
             // warm up caches and the pool
             p.install(|| world.trace(&pencil, ch, photons / 10, 99, None));
@@ -165,10 +278,19 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
             });
         }
     }
-    let speedup_1_to_2 = rows
-        .chunks(2)
-        .map(|r| (r[0].medium.clone(), r[1].events_per_s / r[0].events_per_s))
-        .collect();
+    let speedup_1_to_2 = if thread_counts == [1, 2] {
+        rows.chunks(2)
+            .map(|r| (r[0].medium.clone(), r[1].events_per_s / r[0].events_per_s))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let mut stripe = Vec::new();
+    if medium.is_none_or(|m| m == "whole-milk") {
+        for wide in [true, false] {
+            stripe.push(stripe_noise(photons, wide)?);
+        }
+    }
     let (mut full_pose_seconds, mut full_pose_cpu_seconds, mut splat_share) = (None, None, None);
     if full_pose {
         let (world, illum) = full_pose_scene()?;
@@ -199,5 +321,6 @@ pub fn run(photons: u64, full_pose: bool) -> Result<BenchReport, Error> {
         full_pose_seconds,
         full_pose_cpu_seconds,
         splat_share,
+        stripe_noise: stripe,
     })
 }

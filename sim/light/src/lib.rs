@@ -29,6 +29,7 @@ pub mod bench;
 pub mod cells;
 pub mod cellwalk;
 pub mod entrance;
+pub mod lanes;
 pub mod medium;
 pub mod microfacet;
 pub mod object;

@@ -110,6 +110,17 @@ impl WalkRng {
         WalkRng { s }
     }
 
+    /// The generator with this state (one lane of the wide walk).
+    #[inline(always)]
+    pub(crate) fn from_state(s: [u64; 4]) -> Self {
+        WalkRng { s }
+    }
+
+    #[inline(always)]
+    pub(crate) fn state(&self) -> [u64; 4] {
+        self.s
+    }
+
     #[inline(always)]
     pub fn next_u64(&mut self) -> u64 {
         let s = &mut self.s;

@@ -33,7 +33,7 @@ pub const MAX_INTERFACES: u32 = 1_000_000;
 /// that make a next-event estimate: consecutive vertices of one path see
 /// nearly the same light, so a tenth of them loses little and saves most of
 /// the cost.
-const NEE_RATE: f32 = 0.1;
+pub(crate) const NEE_RATE: f32 = 0.1;
 /// Share of uniformly sampled directions in the vertex estimate on a relief.
 const DEFENSIVE: f32 = 0.1;
 /// Fixed-point quanta per unit of normalised splat.
@@ -430,21 +430,33 @@ impl Pass<'_> {
         }
     }
 
-    /// Run `n` photons with seed `seed`; returns the tally.
+    /// Run `n` photons with seed `seed`; returns the tally. A homogeneous
+    /// volume under a dielectric top takes the wide walk (`crate::lanes`).
     pub fn run(&self, source: &Source, n: u64, seed: u64) -> Tally {
+        self.run_with(source, n, seed, self.wide_walk_applies())
+    }
+
+    /// `run` with the walk chosen: `wide` (where it applies) or one photon
+    /// at a time. Both sample the same distribution from different streams.
+    pub(crate) fn run_with(&self, source: &Source, n: u64, seed: u64, wide: bool) -> Tally {
         let blocks = n.div_ceil(BLOCK);
+        let wide = wide && self.wide_walk_applies();
         (0..blocks)
             .into_par_iter()
             .map(|b| {
-                let mut rng = WalkRng::new(mix64(seed ^ ((self.channel as u64) << 60)), b);
+                let key = mix64(seed ^ ((self.channel as u64) << 60));
                 let count = BLOCK.min(n - b * BLOCK);
-                let mut t = Tally::default();
                 let table = self
                     .scene
                     .volume
                     .as_ref()
                     .map(|v| v.channel_table(self.channel))
                     .unwrap_or_default();
+                if wide {
+                    return self.run_block_wide(source, count, key, b, &table);
+                }
+                let mut rng = WalkRng::new(key, b);
+                let mut t = Tally::default();
                 for _ in 0..count {
                     let (o, d) = self.emit(source, &mut rng);
                     self.trace(o, d, &mut rng, &table, &mut t);
@@ -455,7 +467,7 @@ impl Pass<'_> {
             .reduce(Tally::default, |a, b| a + b)
     }
 
-    fn emit(&self, source: &Source, rng: &mut WalkRng) -> (Vec3, Vec3) {
+    pub(crate) fn emit(&self, source: &Source, rng: &mut WalkRng) -> (Vec3, Vec3) {
         match *source {
             Source::Stripe {
                 origin,
@@ -538,19 +550,19 @@ impl Pass<'_> {
     /// the surface point and the boundary's BTDF there. Vertices deep below
     /// the surface are skipped by Russian roulette on depth (weight 1/q), so
     /// the estimate stays unbiased at a fraction of the cost.
-    fn vertex_splat(
+    /// `u`, uniform in [0, 1), decides the roulette; a vertex that passes
+    /// draws one number from the walk's stream, whatever the cameras, so
+    /// the walk (and so every image) is the same for any set of cameras.
+    pub(crate) fn vertex_splat(
         &self,
         p: Vec3,
         st: f32,
         table: &[(f32, f32)],
         bsdf: &Dielectric,
+        u: f32,
         rng: &mut WalkRng,
     ) {
         let Some(accum) = self.accum else { return };
-        // Exactly one draw from the walk's stream, whatever the cameras: the
-        // walk (and so every image) is the same for any set of cameras.
-        let key = rng.next_u64();
-        let u = unit_f32((key >> 32) as u32);
         // q <= NEE_RATE < 1, so most vertices are turned away here, before
         // the height lookup and the exponential (same decisions as testing
         // u >= q alone)
@@ -571,6 +583,7 @@ impl Pass<'_> {
         if u >= q {
             return;
         }
+        let key = rng.next_u64();
         let n0 = hf.normal(p.x, p.y);
         let local0 = Local::new(n0);
         let above = Vec3::new(p.x, p.y, p.z + depth);
@@ -699,10 +712,37 @@ impl Pass<'_> {
             self.trace_cells(vol, cells, o, d, rng, table, t);
             return;
         }
+        if let Some((p, d)) = self.enter(o, d, rng, t) {
+            let bsdf = self
+                .dielectric()
+                .expect("only a dielectric top lets light in");
+            self.walk(p, d, rng, table, &bsdf, t);
+        }
+    }
+
+    /// The top surface of a dielectric sample, if that is what the scene is.
+    pub(crate) fn dielectric(&self) -> Option<Dielectric> {
+        match &self.scene.kind {
+            SurfaceKind::Dielectric(b) => Some(*b),
+            SurfaceKind::Lambertian(_) => None,
+        }
+    }
+
+    /// A photon from `o` along `d` meets the top: a target's Lambertian
+    /// event, or the dielectric's reflection or refraction. Where it enters
+    /// the volume, its start just below the surface and direction; every
+    /// other outcome is counted in `t`.
+    pub(crate) fn enter(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        rng: &mut WalkRng,
+        t: &mut Tally,
+    ) -> Option<(Vec3, Vec3)> {
         let hf = &self.scene.surface;
         let Some((_, x)) = hf.intersect_from_above(o, d) else {
             t.missed += 1;
-            return;
+            return None;
         };
         let n = hf.normal(x.x, x.y);
         let local = Local::new(n);
@@ -716,22 +756,22 @@ impl Pass<'_> {
                 } else {
                     t.absorbed += 1;
                 }
-                return;
+                return None;
             }
             SurfaceKind::Dielectric(b) => *b,
         };
         // entry: surface reflection towards the cameras, then reflect or refract
         let Some(s) = self.boundary_event(x, &local, wo, &bsdf, true, rng) else {
             t.surface_loss += 1;
-            return;
+            return None;
         };
         if s.wi.z > 0.0 {
             t.reflected += 1;
-            return;
+            return None;
         }
         t.entered += 1;
         let d = local.to_world(s.wi);
-        self.walk(x + d * 1e-4, d, rng, table, &bsdf, t);
+        Some((x + d * 1e-4, d))
     }
 
     /// The random walk inside the volume, starting just below the surface.
@@ -846,7 +886,8 @@ impl Pass<'_> {
                 };
             }
             if NEE {
-                self.vertex_splat(p, st, table, bsdf, rng);
+                let u = rng.uniform();
+                self.vertex_splat(p, st, table, bsdf, u, rng);
             }
             from_vertex = true;
             d = sample_uniform_sphere_bits(rng.next_u64());
@@ -866,7 +907,7 @@ impl Pass<'_> {
     /// or the boundary event (splat the transmitted light, sample reflection
     /// or refraction). Out of line: the walk's loop stays small.
     #[inline(never)]
-    fn cross_boundary(
+    pub(crate) fn cross_boundary(
         &self,
         x: Vec3,
         d: Vec3,
@@ -895,7 +936,7 @@ impl Pass<'_> {
 
 /// How a walk ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum End {
+pub(crate) enum End {
     Absorbed,
     Escaped,
     Truncated,
@@ -904,7 +945,7 @@ enum End {
 }
 
 /// The outcome of reaching the top from inside.
-enum Crossing {
+pub(crate) enum Crossing {
     /// Reflected back in, along this direction.
     Inside(Vec3),
     Ended(End),

@@ -468,6 +468,20 @@ impl World {
         seed: u64,
         exits: Option<&ExitGrid>,
     ) -> Tally {
+        self.trace_with(source, channel, photons, seed, exits, true)
+    }
+
+    /// `trace` with the walk chosen: `wide` where it applies (as `trace`),
+    /// or every photon through the scalar walk (for comparisons).
+    pub(crate) fn trace_with(
+        &self,
+        source: &Source,
+        channel: usize,
+        photons: u64,
+        seed: u64,
+        exits: Option<&ExitGrid>,
+        wide: bool,
+    ) -> Tally {
         let pass = Pass {
             scene: &self.scene,
             cams: &[],
@@ -476,6 +490,6 @@ impl World {
             channel: channel.min(2),
             vertex_nee: false,
         };
-        pass.run(source, photons, seed)
+        pass.run_with(source, photons, seed, wide)
     }
 }
