@@ -33,7 +33,7 @@ use std::time::Instant;
 
 use crate::ModelError;
 use crate::dipole;
-use crate::model::{FitDiagnostics, MaterialModel};
+use crate::model::{FitDiagnostics, FitTimings, MaterialModel};
 use crate::profile::Norm;
 use crate::rectified::Rectified;
 use crate::subsurface::DipoleParams;
@@ -69,15 +69,6 @@ impl Default for FitOptions {
             bin_mm: None,
         }
     }
-}
-
-/// Wall-clock of the fit stages, seconds.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct FitTimings {
-    pub dipole: f64,
-    pub entrance: f64,
-    pub exiting: f64,
-    pub lrf: f64,
 }
 
 /// Fits the material model of the capture in `capture_dir`.

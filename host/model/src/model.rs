@@ -123,6 +123,15 @@ impl LocalReflectance {
     }
 }
 
+/// Wall-clock of the fit stages ([`crate::fit`]), seconds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FitTimings {
+    pub dipole: f64,
+    pub entrance: f64,
+    pub exiting: f64,
+    pub lrf: f64,
+}
+
 /// Fit diagnostics kept with the model for the report (paper Fig. 5).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct FitDiagnostics {
@@ -134,10 +143,10 @@ pub struct FitDiagnostics {
     pub notes: Vec<String>,
     /// Wall time of the fit's stages (absent in models fitted before it was recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub timings: Option<crate::fit::FitTimings>,
+    pub timings: Option<FitTimings>,
     /// The calibration the capture was rectified with, from its rectified index.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<crate::rectified::CalibrationSummary>,
+    pub calibration: Option<qhm_formats::rectified::CalibrationSummary>,
     /// The capture directory the model was fitted from, as the fit was given it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capture_dir: Option<String>,
