@@ -143,9 +143,13 @@ pub fn calibrated_shots(shots: Vec<Shot>, cal: &Calibration) -> (Vec<Shot>, Vec<
 /// `qhm demo` and of the walkthrough).
 pub const CALIBRATION_FILE: &str = "calibration.toml";
 
-/// `capture_dir/../calibration.toml`.
+/// `capture_dir/../calibration.toml`, taken apart by name (the capture
+/// directory need not exist yet).
 pub fn calibration_beside(capture_dir: &Path) -> PathBuf {
-    capture_dir.join("..").join(CALIBRATION_FILE)
+    match (capture_dir.file_name(), capture_dir.parent()) {
+        (Some(_), Some(parent)) => parent.join(CALIBRATION_FILE),
+        _ => capture_dir.join("..").join(CALIBRATION_FILE),
+    }
 }
 
 /// The calibration `qhm capture run` records for a capture into `out`: the
