@@ -10,7 +10,7 @@
 
 use std::f64::consts::PI;
 
-use crate::ModelError;
+use crate::error::ModelError;
 use crate::quad;
 
 /// Relative index of refraction the paper fits with (after Jensen et al. 2001).

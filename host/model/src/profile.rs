@@ -26,8 +26,7 @@ use glam::{DMat2, DMat3, DVec2, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::ModelError;
-use crate::error::number;
+use crate::error::{ModelError, number};
 use crate::fresnel::normal_transmittance;
 use crate::scaled_stripe::ScaledStripe;
 use crate::subsurface::{ProfileModel, check_eta};

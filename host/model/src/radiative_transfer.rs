@@ -30,7 +30,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use rayon::prelude::*;
 
-use crate::ModelError;
+use crate::error::ModelError;
 use crate::fresnel::fresnel_dielectric;
 use crate::quad::{self, GL4};
 use crate::special::{bessel_j0, filon_cos, hankel_j0};

@@ -17,7 +17,7 @@ use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use crate::ModelError;
+use crate::error::ModelError;
 use crate::fresnel::{fresnel_transmittance_ratio, normal_transmittance};
 use crate::model::{FitDiagnostics, MaterialModel, Texture};
 use crate::profile::SIGMA_T_PRIME_MAX;

@@ -10,9 +10,8 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::ModelError;
 use crate::dipole::{self, Dipole};
-use crate::error::number;
+use crate::error::{ModelError, number};
 use crate::fresnel;
 use crate::radiative_transfer::{HalfSpace, RadialProfile};
 use crate::scaled_stripe::ScaledStripe;

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use crate::ModelError;
+use crate::error::ModelError;
 use crate::exrio::write_rgb;
 use crate::fresnel::{
     exitance_per_radiance, fresnel_hemispherical_average, fresnel_transmittance_ratio,
