@@ -19,16 +19,18 @@ use sim_light::{SampleDesc, SceneDesc};
 
 fn mitsuba_available() -> bool {
     let ok = Command::new("python3")
-        .args(["-c", "import mitsuba"])
+        .args(["-c", "import mitsuba, numpy"])
         .output()
         .is_ok_and(|o| o.status.success());
     if !ok {
         if std::env::var("QHM_REQUIRE_MITSUBA").as_deref() == Ok("1") {
             panic!(
-                "QHM_REQUIRE_MITSUBA=1 but python3 cannot import mitsuba (pip install mitsuba==3.9.1)"
+                "QHM_REQUIRE_MITSUBA=1 but python3 cannot import mitsuba and numpy (pip install mitsuba==3.9.1 numpy)"
             );
         }
-        eprintln!("SKIPPED: python3 cannot import mitsuba (pip install mitsuba==3.9.1)");
+        eprintln!(
+            "SKIPPED: python3 cannot import mitsuba and numpy (pip install mitsuba==3.9.1 numpy)"
+        );
     }
     ok
 }
