@@ -79,7 +79,7 @@ impl Progress for CalBar {
 }
 
 /// Reports each manual step and carries on (`--yes`).
-struct Unattended;
+pub struct Unattended;
 
 impl Operator for Unattended {
     fn move_laser_clamp(&mut self, elevation: f64) -> BoxFuture<'_, Result<(), OperatorError>> {

@@ -88,6 +88,10 @@ pub struct RunArgs {
     /// No progress bars (logs and CI).
     #[arg(long)]
     pub quiet: bool,
+    /// Real rig, unattended: report each operator step (the laser clamp) and
+    /// carry on without waiting for Enter.
+    #[arg(long)]
+    pub yes: bool,
     /// Simulated rig: take only share K of N of the plan's steps (1 <= K <= N),
     /// into OUT/shards/K-of-N/; join the N shares with `--merge`.
     #[arg(long, value_name = "K/N", requires = "sim")]
@@ -235,6 +239,9 @@ fn resume_command(m: &Manifest, a: &RunArgs) -> String {
         }
         if a.baud != DEFAULT_BAUD {
             cmd += &format!(" --baud {}", a.baud);
+        }
+        if a.yes {
+            cmd += " --yes";
         }
     }
     cmd + &format!(" --resume -o {}", shell_word(&a.out.to_string_lossy()))
@@ -394,7 +401,12 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
     } else {
         let link;
         (link, real_cameras) = host::real_rig::open(a.port.as_deref(), a.baud, &a.cameras).await?;
-        (link, Box::new(ConsoleOperator) as Box<dyn Operator>)
+        let op: Box<dyn Operator> = if a.yes {
+            Box::new(host::calibrate::Unattended)
+        } else {
+            Box::new(ConsoleOperator)
+        };
+        (link, op)
     };
     let made_out = !out.exists();
     let mut dir = match opened {
