@@ -23,7 +23,8 @@ qhm=${3:-$(dirname "$0")/../target/release/qhm}
 for f in mcml.h mcmlgo.c mcmlio.c mcmlmain.c; do
     [[ -f $src/$f ]] || { echo "error: $src/$f not found (expected MCML 2.0's sources)" >&2; exit 2; }
 done
-[[ -x $qhm ]] || { echo "error: $qhm not found; build it: cargo build --release -p qhm" >&2; exit 2; }
+[[ -x $qhm ]] || { echo "error: $qhm not found; build it: cargo build --release -p host --bin qhm" >&2; exit 2; }
+qhm=$(realpath "$qhm")
 [[ $photons =~ ^[0-9]+$ && $photons -ge 1000 ]] || { echo "error: PHOTONS $photons: expected an integer >= 1000" >&2; exit 2; }
 
 work=$(mktemp -d)
@@ -33,13 +34,13 @@ cd "$work"
 # FindDataLine returns its buffer to the caller: static, or it is gone
 perl -0pi -e 's/(FindDataLine\(FILE \* Fp\)\s*\{\s*)char(\s+buf\[STRLEN\];)/${1}static char$2/' mcmlio.c
 grep -q 'static char        buf\[STRLEN\]' mcmlio.c || { echo "error: could not patch FindDataLine in $src/mcmlio.c" >&2; exit 2; }
-gcc -O3 -o mcml mcmlmain.c mcmlgo.c mcmlio.c -lm
+gcc -O3 -w -o mcml mcmlmain.c mcmlgo.c mcmlio.c -lm
 
 # the counting copy: a global total of Photon_Ptr->scatters, printed at the end
 mkdir count && cp mcml.h mcmlgo.c mcmlio.c mcmlmain.c count/
 perl -0pi -e 's/(void\s+TracePhoton\([^)]*\)\s*\{)/long long qhm_interactions = 0;\n$1/; s/(\} while \(Photon_Ptr->alive\);)/$1\n  qhm_interactions += Photon_Ptr->scatters;/' count/mcmlgo.c
 perl -0pi -e 's/(ReportResult\(In_Ptr, Out_Ptr\);)/{ extern long long qhm_interactions; fprintf(stderr, "interactions %lld\\n", qhm_interactions); }\n  $1/' count/mcmlmain.c
-gcc -O3 -o count/mcml count/mcmlmain.c count/mcmlgo.c count/mcmlio.c -lm
+gcc -O3 -w -o count/mcml count/mcmlmain.c count/mcmlgo.c count/mcmlio.c -lm
 
 # Lengths in cm, coefficients in 1/cm: mu_s 32.1, mu_a 0.024; a 10 cm slab.
 mci() {
