@@ -3,8 +3,8 @@
 //! and `qhm render` run by hand in the same directory (the calibration found
 //! beside the capture, as the demo leaves it) write the same model, file for
 //! file and byte for byte (fit.json's wall-clock `timings` aside), and
-//! render it to the same image. A fit with another index of refraction is
-//! shown to differ, so the comparison can fail.
+//! render it to the same image. The same model with its index of refraction
+//! or one texel changed is shown to differ, so the comparison can fail.
 
 mod cli_util;
 use cli_util::{run as qhm, snapshot};
@@ -136,21 +136,31 @@ fn the_manual_chain_on_a_demos_directories_gives_the_demos_model() {
         "the two models render differently"
     );
 
-    // The comparison sees a model that differs: the same capture fitted
-    // with another index of refraction.
+    // The comparison sees a model that differs: the manual chain's model
+    // with its index of refraction changed, and with one texel changed.
     let other = tmp.path().join("other-model");
-    let other_eta = (summary.recovered.eta + 0.05).to_string();
-    ok(&[
-        "fit",
-        cap,
-        "-o",
-        other.to_str().unwrap(),
-        "--eta",
-        &other_eta,
-    ]);
-    let differences = model_differences(&demo_model, &other);
+    cli_util::copy_tree(&model, &other);
+    let manifest = std::fs::read_to_string(other.join("manifest.toml")).unwrap();
+    let eta_line = format!("eta = {eta}\n");
     assert!(
-        differences.iter().any(|d| d.contains("manifest.toml")),
-        "another eta must show in the manifest: {differences:?}"
+        manifest.contains(&eta_line),
+        "no {eta_line:?} in:\n{manifest}"
+    );
+    std::fs::write(
+        other.join("manifest.toml"),
+        manifest.replacen(&eta_line, "eta = 1.35\n", 1),
+    )
+    .unwrap();
+    let differences = model_differences(&demo_model, &other);
+    assert_eq!(differences, ["manifest.toml differs"]);
+    cli_util::copy_tree(&model, &other);
+    let exr = other.join("fv/view_000.exr");
+    let mut bytes = std::fs::read(&exr).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    std::fs::write(&exr, bytes).unwrap();
+    assert_eq!(
+        model_differences(&demo_model, &other),
+        ["fv/view_000.exr differs"]
     );
 }
