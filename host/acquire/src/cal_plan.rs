@@ -107,7 +107,8 @@ pub struct CalPlanConfig {
     /// Lamps measured on the reference white.
     pub lamps: Vec<u8>,
     pub lamp_exposures: Vec<f64>,
-    /// Laser bracket (the stripe on white clips above ~0.1 ms at full power).
+    /// Laser bracket (the stripe on white clips above ~0.1 ms at full power;
+    /// it starts at 10 us, the shortest exposure many GenICam cameras take).
     pub laser_exposures: Vec<f64>,
     /// Clamp elevations of the laser-plane measurement.
     pub plane_elevations: Vec<f64>,
@@ -140,7 +141,7 @@ impl CalPlanConfig {
             spacer_mm: 20.0,
             lamps: g.used_lamps().map(|(i, _)| i as u8).collect(),
             lamp_exposures: vec![0.01, 0.04, 0.16, 0.64],
-            laser_exposures: vec![2e-6, 8e-6, 3.2e-5, 1.28e-4, 5.12e-4, 2.048e-3],
+            laser_exposures: vec![1e-5, 4e-5, 1.6e-4, 6.4e-4, 2.56e-3],
             plane_elevations: g.laser.positions.to_vec(),
             plane_arc: 30.0 * PI / 180.0,
         }
