@@ -20,7 +20,7 @@
 #     target it could not find, without a panic and without writing the
 #     calibration file.
 # Usage: tests/scripts/rehearsal.sh [QHM_BINARY]  (default: builds qhm with
-# --features aravis). Installs Debian's Aravis if missing.
+# --profile test --features aravis). Installs Debian's Aravis if missing.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 t_start=$(date +%s)
@@ -33,6 +33,7 @@ fail() {
 need=()
 pkg-config --exists aravis-0.8 2>/dev/null || need+=(libaravis-dev libusb-1.0-0-dev)
 command -v arv-fake-gv-camera-0.8 >/dev/null || need+=(aravis-tools)
+command -v ip >/dev/null || need+=(iproute2)
 if ((${#need[@]})); then
     sudo=""
     [ "$(id -u)" -eq 0 ] || sudo="sudo"
@@ -44,9 +45,11 @@ work=$(mktemp -d /tmp/qhm-rehearsal.XXXXXX)
 if [ $# -ge 1 ]; then
     cp "$1" "$work/qhm"
 else
-    cargo build --release -p host --features aravis
+    # The test profile (optimised, target/debug): after the test suite only
+    # the crates the feature changes are rebuilt.
+    cargo build --profile test -p host --features aravis
     # A private copy: a later build of qhm without the feature cannot swap it mid-run.
-    cp target/release/qhm "$work/qhm"
+    cp target/debug/qhm "$work/qhm"
 fi
 qhm="$work/qhm"
 t_built=$(date +%s)
