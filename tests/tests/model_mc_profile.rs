@@ -180,7 +180,7 @@ fn monte_carlo_and_transport_solution_agree() {
         let (k, eta) = material_preset(name).unwrap();
         let (ss, sa) = (k.sigma_s[c], k.sigma_a[c]);
         let (st, a) = (ss + sa, ss / (ss + sa));
-        let (profile, r) = mc_profile(ss, sa, eta, 0.0, 2_000_000, 11);
+        let (profile, r) = mc_profile(ss, sa, eta, 0.0, 6_000_000, 11);
         let half_space = HalfSpace::shared(eta);
         let t_in = normal_transmittance(eta);
         let r_exact = t_in * half_space.total_reflectance(a);
