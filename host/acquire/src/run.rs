@@ -112,6 +112,9 @@ struct RigCache {
     homed: bool,
     turntable: f64,
     light_arc: f64,
+    /// The arc's angle before its last move: a reset mid-move leaves the
+    /// carriage anywhere between this and `light_arc`.
+    light_arc_from: f64,
     clamp: Option<f64>,
     /// The calibration target the operator last put on the turntable.
     target: Option<String>,
@@ -191,9 +194,14 @@ pub async fn run_capture(
                     // home cam from the positive side (otherwise it runs into
                     // its end switch): bring it back over home first, by a
                     // relative move from where it was last sent.
-                    if rig.light_arc < 0.0 {
-                        link.move_rad(Axis::LightArc, -rig.light_arc + 0.2, true, 0.0, 0.0)
-                            .await?;
+                    // A reset mid-move leaves it between the move's ends, so
+                    // clear the lower end without pushing the upper one past
+                    // the arc's soft range (that is its end switch).
+                    let lo = rig.light_arc.min(rig.light_arc_from);
+                    let hi = rig.light_arc.max(rig.light_arc_from);
+                    if lo < 0.0 {
+                        let shift = (-lo + 0.2).min(LIGHT_ARC.soft_max - hi);
+                        link.move_rad(Axis::LightArc, shift, true, 0.0, 0.0).await?;
                         link.wait_motion_done(Axis::LightArc).await?;
                     }
                     if resets > opts.max_resets_per_step {
@@ -296,6 +304,7 @@ async fn run_step(
         rig.homed = true;
         rig.turntable = 0.0;
         rig.light_arc = 0.0;
+        rig.light_arc_from = 0.0;
     }
     // The operator's step: laser off while a person handles the unit.
     if let Some(e) = step.clamp_elevation
@@ -325,6 +334,7 @@ async fn run_step(
     }
     // Both axes at once; exposures wait until both stop and settle.
     let mut settle_s: f64 = 0.0;
+    rig.light_arc_from = rig.light_arc;
     for (axis, mech, target, current) in [
         (
             Axis::Turntable,
