@@ -41,9 +41,6 @@ pub mod surface;
 pub mod walk;
 mod world;
 
-// The object integrators still name the walk by its old module name.
-use walk as transport;
-
 pub use rig::{CameraTruth, LampTruth, LaserGeometry, LaserTruth, RigTruth};
 pub use sample::{
     COLOUR_PATTERN, Coefficients, InclusionDesc, MaterialDesc, POLISHED_ROUGHNESS, Relief,

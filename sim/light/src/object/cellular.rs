@@ -33,7 +33,7 @@ use super::integrator::{Ctx, Frame};
 use crate::cells::Cells;
 use crate::microfacet::{Dielectric, TransportMode};
 use crate::rng::{Rng, WalkRng, exp1_from_bits};
-use crate::transport::sample_uniform_sphere_bits;
+use crate::walk::sample_uniform_sphere_bits;
 
 use super::{DeltaLight, ObjectError, ObjectStats};
 

@@ -61,7 +61,7 @@ use super::{DeltaLight, ObjectError, ObjectScene};
 use crate::medium::Volume;
 use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
 use crate::rng::{WalkRng, exp1_from_bits, mix64};
-use crate::transport::sample_uniform_sphere_bits;
+use crate::walk::sample_uniform_sphere_bits;
 
 /// Isotropic phase function.
 const PHASE: f32 = 1.0 / (4.0 * PI);
