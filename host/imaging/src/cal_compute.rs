@@ -14,6 +14,7 @@ use std::f64::consts::PI;
 use std::path::PathBuf;
 
 use glam::{DMat3, DQuat, DVec2, DVec3};
+use rayon::prelude::*;
 
 use crate::calibration::{Calibration, LampCal, LaserCal, Turntable};
 use crate::camera::{CameraModel, Intrinsics, rodrigues, rodrigues_inv};
@@ -330,10 +331,25 @@ fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
             return Err(s.fail(format!("binning {} differs from {b}", s.binning)));
         }
         let nominal = nominal_camera(k, b);
+        // Corners of every view at once (the frames are independent); the
+        // raised views are then matched to theirs in order.
+        let found: Vec<Option<PlanarView>> = mine
+            .par_iter()
+            .map(|s| {
+                let (frames, _) = s.read()?;
+                let frame = frames.last().ok_or_else(|| s.fail("no frame"))?;
+                Ok(board_view(
+                    frame,
+                    &nominal,
+                    s.turntable,
+                    s.height_mm,
+                    &board,
+                ))
+            })
+            .collect::<Result<_>>()?;
         let mut views: Vec<PlanarView> = Vec::new();
         let mut thetas: Vec<f64> = Vec::new();
-        let mut looked = 0;
-        for s in &mine {
+        for (s, found) in mine.iter().zip(found) {
             let raised = if s.height_mm > 0.0 {
                 let base = (0..views.len())
                     .find(|&i| views[i].raised.is_none() && (thetas[i] - s.turntable).abs() < 1e-9);
@@ -347,10 +363,7 @@ fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
             } else {
                 None
             };
-            let (frames, _) = s.read()?;
-            let frame = frames.last().ok_or_else(|| s.fail("no frame"))?;
-            looked += 1;
-            let Some(mut v) = board_view(frame, &nominal, s.turntable, s.height_mm, &board) else {
+            let Some(mut v) = found else {
                 continue;
             };
             v.raised = raised;
@@ -362,9 +375,10 @@ fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
             .collect();
         if on_table.len() < 2 {
             return Err(Error::Input(format!(
-                "camera {k}: the {} was found in {} of {looked} views on the turntable (2 needed)",
+                "camera {k}: the {} was found in {} of {} views on the turntable (2 needed)",
                 mine[0].target,
                 on_table.len(),
+                mine.iter().filter(|s| s.height_mm <= 0.0).count(),
             )));
         }
         let bf = b as f64;

@@ -23,28 +23,27 @@ pub fn gaussian_blur(src: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
         .collect();
     let ks: f32 = k.iter().sum();
     let k: Vec<f32> = k.iter().map(|v| v / ks).collect();
+    let tap = |i: isize, n: usize| (i - r).clamp(0, n as isize - 1) as usize;
     let mut tmp = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let xx = (x as isize + j as isize - r).clamp(0, w as isize - 1) as usize;
-                s += kv * src[y * w + xx];
-            }
-            tmp[y * w + x] = s;
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        // The row with its edge pixels repeated r times each side, so the
+        // taps need no bounds.
+        let padded: Vec<f32> = (0..w + 2 * r as usize)
+            .map(|i| src[y * w + tap(i as isize, w)])
+            .collect();
+        for (t, win) in row.iter_mut().zip(padded.windows(k.len())) {
+            *t = k.iter().zip(win).map(|(kv, v)| kv * v).sum();
         }
-    }
+    });
     let mut out = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let yy = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize;
-                s += kv * tmp[yy * w + x];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (j, kv) in k.iter().enumerate() {
+            let yy = tap(y as isize + j as isize, h);
+            for (o, t) in row.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *o += kv * t;
             }
-            out[y * w + x] = s;
         }
-    }
+    });
     out
 }
 
@@ -220,7 +219,7 @@ pub fn fit_saddle(
     };
     let model = |g: &Geom, d: DVec2| {
         let (d1, d2) = ((d - g.c).dot(g.n1), (d - g.c).dot(g.n2));
-        ((d1 / g.ww).tanh(), (d2 / g.ww).tanh(), d1, d2)
+        (tanh(d1 / g.ww), tanh(d2 / g.ww), d1, d2)
     };
     // m and a by linear least squares for the initial geometry.
     let lin = |q: &[f64; 7]| {
@@ -303,7 +302,7 @@ pub fn fit_saddle(
             nq[6] = nq[6].clamp(-3.0, 2.5);
             let c1 = cost(&nq);
             if c1 < c0 {
-                let done = (c0 - c1) < 1e-10 * c0 || step[0].hypot(step[1]) < 1e-5;
+                let done = (c0 - c1) < 1e-10 * c0 || step[0].hypot(step[1]) < 1e-4;
                 q = nq;
                 c0 = c1;
                 lambda = (lambda * 0.3).max(1e-9);
@@ -319,6 +318,18 @@ pub fn fit_saddle(
     let c = DVec2::new(q[0], q[1]);
     let limit = reach / 3.0 * e1.length().min(e2.length());
     (c.length() <= limit && c.is_finite()).then_some(p + c)
+}
+
+/// tanh by one `exp`: libm's `tanh` (through `expm1`) took a third of the
+/// calibration's corner fits, this a fifth of that; within 1e-16 absolute,
+/// which is all the fit sees of it.
+#[inline]
+fn tanh(x: f64) -> f64 {
+    if x.abs() > 19.0 {
+        return x.signum();
+    }
+    let e = (2.0 * x).exp();
+    (e - 1.0) / (e + 1.0)
 }
 
 /// An inner checkerboard corner: on a circle around it the intensity crosses its
