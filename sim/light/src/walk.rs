@@ -242,38 +242,54 @@ impl ExitGrid {
     }
 }
 
-/// Fixed-point accumulation images for one channel, one per camera.
+/// Fixed-point accumulation images, one per camera: one channel, or three
+/// interleaved (a Lambertian target's lamp pass, see `Accum::rgb`).
 pub struct Accum {
     pub images: Vec<Vec<AtomicU64>>,
+    pub channels: usize,
 }
 
 impl Accum {
+    /// One channel.
     pub fn new(cams: &[SplatCamera]) -> Self {
+        Self::with_channels(cams, 1)
+    }
+    /// Three channels from one set of photons: where the surface's paths do
+    /// not depend on the wavelength (an opaque Lambertian target), a photon
+    /// splats its albedo in each channel rather than tracing three times.
+    pub fn rgb(cams: &[SplatCamera]) -> Self {
+        Self::with_channels(cams, 3)
+    }
+    fn with_channels(cams: &[SplatCamera], channels: usize) -> Self {
         Accum {
             images: cams
                 .iter()
                 .map(|c| {
-                    (0..(c.width as usize * c.height as usize))
+                    (0..(c.width as usize * c.height as usize * channels))
                         .map(|_| AtomicU64::new(0))
                         .collect()
                 })
                 .collect(),
+            channels,
         }
     }
-    /// Unnormalised sums back to floats (multiply by photon flux outside).
-    pub fn to_f64(&self, k: usize, cam: &SplatCamera) -> impl Iterator<Item = f64> + '_ {
+    /// Unnormalised sums of channel `c` back to floats (multiply by photon
+    /// flux outside).
+    pub fn to_f64(&self, k: usize, c: usize, cam: &SplatCamera) -> impl Iterator<Item = f64> + '_ {
         let scale = cam.norm as f64 / QUANTUM;
-        self.images[k]
+        self.images[k][c.min(self.channels - 1)..]
             .iter()
+            .step_by(self.channels)
             .map(move |a| a.load(Ordering::Relaxed) as f64 * scale)
     }
 }
 
-/// Add one splat (already normalised by the camera) to pixel `px` of camera `k`.
+/// Add one splat (already normalised by the camera) to element `i` (pixel
+/// times channels plus channel) of camera `k`.
 #[inline]
-fn deposit(accum: &Accum, k: usize, px: usize, v: f32) {
+fn deposit(accum: &Accum, k: usize, i: usize, v: f32) {
     let q = (v as f64 * QUANTUM).min(1e18) as u64;
-    accum.images[k][px].fetch_add(q, Ordering::Relaxed);
+    accum.images[k][i].fetch_add(q, Ordering::Relaxed);
 }
 
 /// One transport run: a source, a channel, and where splats go.
@@ -413,6 +429,40 @@ impl Pass<'_> {
         f: impl Fn(Vec3) -> f32,
         visible: impl Fn(Vec3, Vec3) -> bool,
     ) {
+        self.splat_views(x, local, f, visible, |accum, k, px, v| {
+            deposit(accum, k, px * accum.channels, v)
+        });
+    }
+
+    /// A Lambertian target's splat into a three-channel accumulation
+    /// (`Accum::rgb`): albedo `rho` per channel.
+    fn splat_lambertian_rgb(&self, x: Vec3, local: &Local, rho: [f32; 3]) {
+        self.splat_views(
+            x,
+            local,
+            |_| std::f32::consts::FRAC_1_PI,
+            |x, w| self.scene.surface.visible(x, w),
+            |accum, k, px, v| {
+                for (c, r) in rho.iter().enumerate() {
+                    if *r > 0.0 {
+                        deposit(accum, k, px * 3 + c, v * r);
+                    }
+                }
+            },
+        );
+    }
+
+    /// For each camera that sees `x`: `put(accum, camera, pixel, value)`
+    /// with the value f(w) cos / (distance^2 norm) of direction w to it.
+    #[inline]
+    fn splat_views(
+        &self,
+        x: Vec3,
+        local: &Local,
+        f: impl Fn(Vec3) -> f32,
+        visible: impl Fn(Vec3, Vec3) -> bool,
+        put: impl Fn(&Accum, usize, usize, f32),
+    ) {
         let Some(accum) = self.accum else { return };
         for (k, cam) in self.cams.iter().enumerate() {
             let Some((px, inv, wc)) = cam.project(x) else {
@@ -426,7 +476,7 @@ impl Pass<'_> {
             if v.is_nan() || v <= 0.0 || !visible(x, wc) {
                 continue;
             }
-            deposit(accum, k, px, v);
+            put(accum, k, px, v);
         }
     }
 
@@ -749,8 +799,15 @@ impl Pass<'_> {
         let wo = local.to_local(-d);
         let bsdf = match &self.scene.kind {
             SurfaceKind::Lambertian(_) => {
-                let rho = self.scene.target_albedo(x.x, x.y, self.channel);
-                self.splat(x, &local, |_| rho * std::f32::consts::FRAC_1_PI);
+                let rho = if self.accum.is_some_and(|a| a.channels == 3) {
+                    let rho = [0, 1, 2].map(|c| self.scene.target_albedo(x.x, x.y, c));
+                    self.splat_lambertian_rgb(x, &local, rho);
+                    rho[self.channel.min(2)]
+                } else {
+                    let rho = self.scene.target_albedo(x.x, x.y, self.channel);
+                    self.splat(x, &local, |_| rho * std::f32::consts::FRAC_1_PI);
+                    rho
+                };
                 if rng.uniform() < rho {
                     t.reflected += 1;
                 } else {
@@ -971,6 +1028,76 @@ pub(crate) fn geometric_events(alb: f32, bits: u64) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One lamp on the colour pattern, photons shared by the three channels
+    /// (`Accum::rgb`): every patch, in every channel, at its own reflectance
+    /// times E cos / pi; the same image read with the channels rotated (a
+    /// plane landing in the wrong channel) is far off.
+    #[test]
+    fn colour_pattern_patches_have_their_radiance_in_each_channel() {
+        use crate::sample::{COLOUR_PATTERN, SceneDesc, TargetDesc};
+        use crate::world::{Illumination, SimQuality, World};
+        let desc = SceneDesc::preset("colour-pattern").unwrap();
+        let SceneDesc::Target {
+            target: TargetDesc::ColourPattern { patch_mm },
+        } = desc
+        else {
+            panic!("the colour-pattern preset is a colour pattern");
+        };
+        let q = SimQuality {
+            lamp_photons: 4_000_000,
+            ..SimQuality::ci()
+        };
+        let w = World::new(desc, crate::RigTruth::nominal(), q).unwrap();
+        let illum = Illumination {
+            lamps: 1 << 6,
+            ..Illumination::default()
+        };
+        let top = 7;
+        let img = w.render_pose(&illum, 1 << top, 5).unwrap();
+        let img = img.image(top).unwrap();
+        let (_, cam) = w.splat_cameras(0.0, 1 << top).remove(0);
+        let dir = w.rig().lamp_direction(6, 0.0);
+        let irradiance = w.rig().lamps[6].irradiance;
+        let iw = img.width as usize;
+        // Mean ratio to the expectation of each patch and channel, over the
+        // 5 x 5 pixels (0.7 mm) about the patch centre.
+        let ratios = |rotate: usize| -> Vec<f64> {
+            let mut out = Vec::new();
+            for k in 0..24 {
+                let (row, col) = ((k / 6) as f64, (k % 6) as f64);
+                let (cx, cy) = ((col - 2.5) * patch_mm, (1.5 - row) * patch_mm);
+                assert_eq!(crate::sample::colour_patch_at(cx, cy, patch_mm), Some(k));
+                let (px, ..) = cam.project(Vec3::new(cx as f32, cy as f32, 0.0)).unwrap();
+                let (x0, y0) = (px % iw, px / iw);
+                for ch in 0..3 {
+                    let rho = COLOUR_PATTERN[k][ch];
+                    if rho < 0.05 {
+                        continue; // too few photons for a 5 x 5 mean
+                    }
+                    let got: f64 = (y0 - 2..=y0 + 2)
+                        .flat_map(|y| (x0 - 2..=x0 + 2).map(move |x| y * iw + x))
+                        .map(|i| img.data[i][(ch + rotate) % 3] as f64)
+                        .sum::<f64>()
+                        / 25.0;
+                    let expect = rho * irradiance[ch] * dir.z / std::f64::consts::PI;
+                    out.push(got / expect);
+                }
+            }
+            out
+        };
+        let right = ratios(0);
+        let mean = right.iter().sum::<f64>() / right.len() as f64;
+        assert!((mean - 1.0).abs() < 0.02, "mean ratio {mean}");
+        for r in &right {
+            assert!((r - 1.0).abs() < 0.15, "a patch at {r} of its radiance");
+        }
+        let off = ratios(1).iter().filter(|r| (*r - 1.0).abs() > 0.15).count();
+        assert!(
+            off > right.len() / 2,
+            "rotated channels: only {off} patches off"
+        );
+    }
 
     #[test]
     fn uniform_sphere_is_uniform() {

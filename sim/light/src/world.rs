@@ -29,7 +29,8 @@ pub struct SimQuality {
     /// fitted at every clamp position).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub oblique_laser_photons: Option<u64>,
-    /// Photons per lamp and channel.
+    /// Photons per lamp and channel (per lamp on a calibration target, whose
+    /// channels share them).
     pub lamp_photons: u64,
     /// Height-field grid spacing, mm.
     pub surface_cell_mm: f64,
@@ -377,31 +378,42 @@ impl World {
             })
             .collect();
         let mut tally = Tally::default();
+        // One pass of `photons` from `source` lighting `fluxes` (channel,
+        // W): one channel, or all three where they share the photons' paths
+        // (`Accum::rgb`).
         let mut run = |source: Source,
-                       ch: usize,
+                       fluxes: &[(usize, f64)],
                        photons: u64,
-                       flux_w: f64,
                        pass_seed: u64,
                        tally: &mut Tally| {
-            if photons == 0 || flux_w <= 0.0 {
+            if photons == 0 || fluxes.iter().all(|f| !(f.1 > 0.0)) {
                 return;
             }
-            let accum = Accum::new(&splat);
+            let accum = if fluxes.len() == 3 {
+                Accum::rgb(&splat)
+            } else {
+                Accum::new(&splat)
+            };
             let pass = Pass {
                 scene: &self.scene,
                 cams: &splat,
                 accum: Some(&accum),
                 exits: None,
-                channel: ch,
+                channel: fluxes[0].0,
                 vertex_nee: self.vertex_nee,
             };
             *tally = *tally + pass.run(&source, photons, pass_seed);
-            // W per photon, mm^-2 -> m^-2
-            let scale = flux_w / photons as f64 * 1e6;
-            for (i, (k, cam)) in cams.iter().enumerate() {
-                if let Some(img) = out[*k].as_mut() {
-                    for (px, v) in img.data.iter_mut().zip(accum.to_f64(i, cam)) {
-                        px[ch] += (v * scale) as f32;
+            for (plane, &(ch, flux_w)) in fluxes.iter().enumerate() {
+                if !(flux_w > 0.0) {
+                    continue;
+                }
+                // W per photon, mm^-2 -> m^-2
+                let scale = flux_w / photons as f64 * 1e6;
+                for (i, (k, cam)) in cams.iter().enumerate() {
+                    if let Some(img) = out[*k].as_mut() {
+                        for (px, v) in img.data.iter_mut().zip(accum.to_f64(i, plane, cam)) {
+                            px[ch] += (v * scale) as f32;
+                        }
                     }
                 }
             }
@@ -424,9 +436,8 @@ impl World {
             };
             run(
                 source,
-                l.channel,
+                &[(l.channel, flux)],
                 photons,
-                flux,
                 seed ^ 0x004C_4153_4552,
                 &mut tally,
             );
@@ -441,17 +452,28 @@ impl World {
             if dir.z <= 1e-3 {
                 continue; // grazing: no light on the sample
             }
-            for ch in 0..3 {
-                let flux = self.rig.lamps[k].irradiance[ch] * dir.z * area_m2;
-                let pass_seed = seed ^ ((k as u64 + 1) << 40) ^ 0x4C41_4D50;
+            let fluxes =
+                [0, 1, 2].map(|ch| (ch, self.rig.lamps[k].irradiance[ch] * dir.z * area_m2));
+            let pass_seed = seed ^ ((k as u64 + 1) << 40) ^ 0x4C41_4D50;
+            let source = Source::Lamp { to_lamp: f32v(dir) };
+            if matches!(self.scene.kind, SurfaceKind::Lambertian(_)) {
                 run(
-                    Source::Lamp { to_lamp: f32v(dir) },
-                    ch,
+                    source,
+                    &fluxes,
                     self.quality.lamp_photons,
-                    flux,
                     pass_seed,
                     &mut tally,
                 );
+            } else {
+                for f in fluxes {
+                    run(
+                        source.clone(),
+                        &[f],
+                        self.quality.lamp_photons,
+                        pass_seed,
+                        &mut tally,
+                    );
+                }
             }
         }
         Ok(PoseRadiance { images: out, tally })
