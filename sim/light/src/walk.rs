@@ -276,8 +276,9 @@ impl Accum {
     /// Unnormalised sums of channel `c` back to floats (multiply by photon
     /// flux outside).
     pub fn to_f64(&self, k: usize, c: usize, cam: &SplatCamera) -> impl Iterator<Item = f64> + '_ {
+        assert!(c < self.channels, "channel {c} of {}", self.channels);
         let scale = cam.norm as f64 / QUANTUM;
-        self.images[k][c.min(self.channels - 1)..]
+        self.images[k][c..]
             .iter()
             .step_by(self.channels)
             .map(move |a| a.load(Ordering::Relaxed) as f64 * scale)
