@@ -11,7 +11,7 @@
 //! sum for comparison. R_d comes from `qhm_model` via a tabulated kernel
 //! ([`RdTable`]); nodes entirely beyond the kernel's range are skipped.
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use qhm_model::DipoleParams;
 
 use crate::light::luminance;
@@ -36,11 +36,12 @@ pub struct RdTable {
     pub near_radius: f32,
     /// ∫ w(r) R(r) dA over the plane, the near field's exact weight.
     near_integral: Vec3,
-    /// The classic dipole's constants per channel for the geometry factor
+    /// The classic dipole's constants for the geometry factor
     /// ([`RdTable::with_geometry`]); None = planar R_d(r) only.
-    geometry: Option<[qhm_model::dipole::Dipole; 3]>,
-    /// Φ_plane(r) per channel on the grid of `values` (with the geometry).
-    planar: Vec<Vec3>,
+    geometry: Option<DipoleLanes>,
+    /// Φ_plane(r) per channel (lane 3 unused) on the grid of `values` (with
+    /// the geometry).
+    planar: Vec<Vec4>,
 }
 
 impl RdTable {
@@ -152,15 +153,24 @@ impl RdTable {
                     };
                     (phi(d.z_r) + phi(d.z_v)) as f32
                 });
-                Vec3::from(v)
+                Vec3::from(v).extend(0.0)
             })
             .collect();
-        self.geometry = Some(g);
+        let lanes = |f: fn(&qhm_model::dipole::Dipole) -> f64| {
+            Vec4::new(f(&g[0]) as f32, f(&g[1]) as f32, f(&g[2]) as f32, 0.0)
+        };
+        self.geometry = Some(DipoleLanes {
+            z_r: lanes(|d| d.z_r),
+            z_v: lanes(|d| d.z_v),
+            sigma_tr: lanes(|d| d.sigma_tr),
+        });
         self
     }
 
     /// G for a sample at offset `dx` = x_o - x_i with normal `ni`, seen
-    /// from a query with normal `no` (see [`RdTable::with_geometry`]).
+    /// from a query with normal `no` (see [`RdTable::with_geometry`]). The
+    /// three channels go in the lanes of one vector: this is the inner loop
+    /// of a render with the geometry factor.
     #[inline]
     fn geometry_factor(&self, dx: Vec3, r: f32, ni: Vec3, no: Vec3) -> Vec3 {
         let Some(g) = &self.geometry else {
@@ -177,30 +187,21 @@ impl RdTable {
             let x = r * self.inv_dr;
             let i = (x as usize).min(self.planar.len().saturating_sub(2));
             let t = (x - i as f32).min(1.0);
-            (self.planar[i] * (1.0 - t) + self.planar[i + 1] * t).to_array()
+            self.planar[i] * (1.0 - t) + self.planar[i + 1] * t
         };
-        let mut out = [1.0f32; 3];
-        for k in 0..3 {
-            let d = &g[k];
-            let (zr, zv, st) = (d.z_r as f32, d.z_v as f32, d.sigma_tr as f32);
-            // z (s_tr d + 1) e^{-s_tr d} / d³ with a signed z.
-            let phi = |z: f32, d2: f32| {
-                let d2 = d2.max(1e-12);
-                let dd = d2.sqrt();
-                z * (st * dd + 1.0) * exp_neg(st * dd) / (d2 * dd)
-            };
-            let planar = planar[k];
-            // Real source s_r = x_i - z_r n_i, image s_v = x_i + z_v n_i.
-            let dr2 = r2 + 2.0 * zr * along + zr * zr;
-            let dv2 = r2 - 2.0 * zv * along + zv * zv;
-            let geo = phi(h + zr * c, dr2) - phi(h - zv * c, dv2);
-            out[k] = if planar > 0.0 && geo.is_finite() {
-                geo.max(0.0) / planar
-            } else {
-                1.0
-            };
-        }
-        Vec3::from(out)
+        // z (s_tr d + 1) e^{-s_tr d} / d³ with a signed z.
+        let phi = |z: Vec4, d2: Vec4| {
+            let d2 = d2.max(Vec4::splat(1e-12));
+            let dd = Vec4::from_array(d2.to_array().map(f32::sqrt));
+            let sd = g.sigma_tr * dd;
+            z * (sd + Vec4::ONE) * exp_neg(sd) / (d2 * dd)
+        };
+        // Real source s_r = x_i - z_r n_i, image s_v = x_i + z_v n_i.
+        let dr2 = g.z_r * (g.z_r + Vec4::splat(2.0 * along)) + Vec4::splat(r2);
+        let dv2 = g.z_v * (g.z_v - Vec4::splat(2.0 * along)) + Vec4::splat(r2);
+        let geo = phi(Vec4::splat(h) + g.z_r * c, dr2) - phi(Vec4::splat(h) - g.z_v * c, dv2);
+        let usable = planar.cmpgt(Vec4::ZERO) & geo.is_finite_mask();
+        Vec4::select(usable, geo.max(Vec4::ZERO) / planar, Vec4::ONE).truncate()
     }
 
     /// Irradiance interpolation in the near field. The kernel is split as
@@ -495,17 +496,32 @@ impl DipoleTree {
     }
 }
 
-/// e^{-x} for x >= 0 to ~3e-6 relative (2^(-x log2 e) split into an
-/// exponent and a Taylor polynomial on [-1/2, 1/2]): the geometry factor's inner loop.
+/// e^{-x} per lane for x >= 0 to ~3e-6 relative (2^(-x log2 e) split into
+/// an exponent and a Taylor polynomial on [-1/2, 1/2]).
 #[inline]
-fn exp_neg(x: f32) -> f32 {
-    let t = -x.clamp(0.0, 87.0) * std::f32::consts::LOG2_E;
-    let i = t.round();
+fn exp_neg(x: Vec4) -> Vec4 {
+    let t = -x.clamp(Vec4::ZERO, Vec4::splat(87.0)) * std::f32::consts::LOG2_E;
+    // Round to nearest by the 1.5 * 2^23 trick: `round` is a libm call per
+    // lane where the target has no SSE4.1.
+    const SHIFT: f32 = 12_582_912.0;
+    let i = (t + Vec4::splat(SHIFT)) - Vec4::splat(SHIFT);
     let f = t - i;
-    let p = 1.0
-        + f * (std::f32::consts::LN_2
-            + f * (0.240_226_5 + f * (0.055_504_1 + f * (0.009_618_1 + f * 0.001_333_4))));
-    f32::from_bits(((i as i32 + 127) << 23) as u32) * p
+    let p = Vec4::ONE
+        + f * (Vec4::splat(std::f32::consts::LN_2)
+            + f * (Vec4::splat(0.240_226_5)
+                + f * (Vec4::splat(0.055_504_1)
+                    + f * (Vec4::splat(0.009_618_1) + f * 0.001_333_4))));
+    let bits: glam::IVec4 = (i.as_ivec4() + 127) << 23i32;
+    Vec4::from_array(bits.to_array().map(|b| f32::from_bits(b as u32))) * p
+}
+
+/// The classic dipole's z_r, z_v and sigma_tr per channel, in the lanes of
+/// a vector (lane 3 unused).
+#[derive(Clone, Copy, Debug)]
+struct DipoleLanes {
+    z_r: Vec4,
+    z_v: Vec4,
+    sigma_tr: Vec4,
 }
 
 /// The near field's sums Σ w R E A and Σ w R A ([`RdTable::with_near_field`]).
@@ -723,11 +739,21 @@ mod tests {
     #[test]
     fn fast_exp_is_exp() {
         for k in 0..2000 {
-            let x = k as f32 * 0.04;
-            let (a, b) = (exp_neg(x), (-x).exp());
-            assert!((a - b).abs() <= 5e-6 * b + 1e-37, "{x}: {a} vs {b}");
+            // Each lane on its own: x, and x offset by a quarter step.
+            let x = Vec4::new(0.0, 0.01, 0.02, 0.03) + k as f32 * 0.04;
+            let a = exp_neg(x);
+            for l in 0..4 {
+                let b = (-x[l]).exp();
+                assert!(
+                    (a[l] - b).abs() <= 5e-6 * b + 1e-37,
+                    "{}: {} vs {b}",
+                    x[l],
+                    a[l]
+                );
+            }
         }
-        assert_eq!(exp_neg(200.0), exp_neg(87.0));
+        assert_eq!(exp_neg(Vec4::splat(200.0)), exp_neg(Vec4::splat(87.0)));
+        assert_eq!(exp_neg(Vec4::splat(-3.0)), Vec4::ONE);
     }
 
     #[test]
