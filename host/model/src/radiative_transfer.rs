@@ -151,18 +151,41 @@ impl Primitives {
 
     /// Linear interpolation of a table at t >= 0.
     fn at(&self, table: &[f64], t: f64) -> f64 {
-        let g = &self.grid;
+        Lerp::locate(&self.grid, t).of(table)
+    }
+}
+
+/// Where a distance t falls on [`primitive_grid`]: a table's value there is
+/// `w0 table[i] + w1 table[i + 1]` (0 at t <= 0, the last entry beyond).
+#[derive(Clone, Copy)]
+struct Lerp {
+    i: usize,
+    w0: f64,
+    w1: f64,
+}
+
+impl Lerp {
+    fn locate(g: &[f64], t: f64) -> Lerp {
+        let last = g.len() - 2;
         if t <= 0.0 {
-            return 0.0;
+            return Lerp {
+                i: 0,
+                w0: 0.0,
+                w1: 0.0,
+            };
         }
         if t >= g[g.len() - 1] {
-            return table[g.len() - 1];
+            return Lerp {
+                i: last,
+                w0: 0.0,
+                w1: 1.0,
+            };
         }
         // Geometric grid: index from the logarithm, then fix up.
         let mut i = if t < 1e-6 {
             0
         } else {
-            (((t / 1e-6).ln() / 1.02f64.ln()) as usize + 1).min(g.len() - 2)
+            (((t / 1e-6).ln() / 1.02f64.ln()) as usize + 1).min(last)
         };
         while i > 0 && g[i] > t {
             i -= 1;
@@ -171,8 +194,70 @@ impl Primitives {
             i += 1;
         }
         let f = (t - g[i]) / (g[i + 1] - g[i]);
-        table[i] * (1.0 - f) + table[i + 1] * f
+        Lerp {
+            i,
+            w0: 1.0 - f,
+            w1: f,
+        }
     }
+
+    #[inline]
+    fn of(self, table: &[f64]) -> f64 {
+        table[self.i] * self.w0 + table[self.i + 1] * self.w1
+    }
+}
+
+/// Where [`solve_source_for`]'s matrix reads the kernel primitives. The
+/// distances are the same at every frequency and albedo (the depth cells
+/// and the grid are fixed), so they are located on the grid once per
+/// process instead of once per matrix entry.
+struct Stencil {
+    mid: Vec<f64>,
+    /// Per cell pair (i, j), row-major: the direct kernel's integral over
+    /// cell j seen from the midpoint of cell i is P(a) + sign P(b), the
+    /// image's P_F(c) - P_F(d).
+    pairs: Vec<([Lerp; 4], f64)>,
+    /// Per cell i: P at t0 = NEAR_DEPTH - z_i, and at t0 + s for the tail's
+    /// nodes s.
+    tail_start: Vec<Lerp>,
+    tail: Vec<Lerp>,
+    tail_nodes: Vec<(f64, f64)>,
+}
+
+fn stencil() -> &'static Stencil {
+    static STENCIL: OnceLock<Stencil> = OnceLock::new();
+    STENCIL.get_or_init(|| {
+        let grid = primitive_grid();
+        let at = |t: f64| Lerp::locate(&grid, t);
+        let edges = depth_cells();
+        let mid: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+        let tail_nodes = tail_nodes();
+        let mut pairs = Vec::with_capacity(mid.len() * mid.len());
+        let (mut tail_start, mut tail) = (Vec::new(), Vec::new());
+        for &zi in &mid {
+            for w in edges.windows(2) {
+                let (lo, hi) = (w[0], w[1]);
+                let ((a, b), sign) = if zi < lo {
+                    ((hi - zi, lo - zi), -1.0)
+                } else if zi > hi {
+                    ((zi - lo, zi - hi), -1.0)
+                } else {
+                    ((zi - lo, hi - zi), 1.0)
+                };
+                pairs.push(([at(a), at(b), at(zi + hi), at(zi + lo)], sign));
+            }
+            let t0 = NEAR_DEPTH - zi;
+            tail_start.push(at(t0));
+            tail.extend(tail_nodes.iter().map(|&(s, _)| at(t0 + s)));
+        }
+        Stencil {
+            mid,
+            pairs,
+            tail_start,
+            tail,
+            tail_nodes,
+        }
+    })
 }
 
 /// Depth below which the source is the asymptotic transport mode: the
@@ -249,42 +334,41 @@ fn solve_source_for(
     prim: &Primitives,
     mut source: Vec<f64>,
 ) -> Vec<f64> {
-    let edges = depth_cells();
-    let n = edges.len() - 1;
+    let st = stencil();
+    let n = st.mid.len();
     let m = n + 1; // cells + the tail's amplitude
     let kappa = (p0 * p0 + k * k).sqrt();
-    let mid: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
     let p_inf = prim.p[prim.p.len() - 1];
-    let tail = tail_nodes();
+    let nodes = st.tail_nodes.len();
+    let decay: Vec<f64> = st
+        .tail_nodes
+        .iter()
+        .map(|&(s, _)| (-kappa * s).exp())
+        .collect();
     let mut a = vec![0.0; m * m];
     for i in 0..n {
-        let zi = mid[i];
         let row = &mut a[i * m..(i + 1) * m];
-        for j in 0..n {
-            let (lo, hi) = (edges[j], edges[j + 1]);
-            let direct = if zi < lo {
-                prim.at(&prim.p, hi - zi) - prim.at(&prim.p, lo - zi)
-            } else if zi > hi {
-                prim.at(&prim.p, zi - lo) - prim.at(&prim.p, zi - hi)
-            } else {
-                prim.at(&prim.p, zi - lo) + prim.at(&prim.p, hi - zi)
-            };
-            let image = prim.at(&prim.p_f, zi + hi) - prim.at(&prim.p_f, zi + lo);
-            row[j] = -alpha * (direct + image);
+        for (entry, ([da, db, ic, id], sign)) in row.iter_mut().zip(&st.pairs[i * n..(i + 1) * n]) {
+            let direct = da.of(&prim.p) + sign * db.of(&prim.p);
+            let image = ic.of(&prim.p_f) - id.of(&prim.p_f);
+            *entry = -alpha * (direct + image);
         }
         // ∫_0^∞ K(t0 + s) e^{-κ s} ds by parts: -P(t0) + κ ∫ P(t0 + s) e^{-κ s} ds
         // (P = P(∞) beyond s = 60). The image of the tail is below e^{-60}.
-        let t0 = NEAR_DEPTH - zi;
-        let body: f64 = tail
+        let body: f64 = st
+            .tail_nodes
             .iter()
-            .map(|&(s, w)| w * prim.at(&prim.p, t0 + s) * (-kappa * s).exp())
+            .zip(&st.tail[i * nodes..(i + 1) * nodes])
+            .zip(&decay)
+            .map(|((&(_, w), l), e)| w * l.of(&prim.p) * e)
             .sum();
-        row[n] = -alpha * (-prim.at(&prim.p, t0) + kappa * body + p_inf * (-kappa * 60.0).exp());
+        row[n] =
+            -alpha * (-st.tail_start[i].of(&prim.p) + kappa * body + p_inf * (-kappa * 60.0).exp());
         row[i] += 1.0;
     }
     // B = C(z) continued from the last cell's midpoint.
     a[n * m + n] = 1.0;
-    a[n * m + n - 1] = -(-kappa * (NEAR_DEPTH - mid[n - 1])).exp();
+    a[n * m + n - 1] = -(-kappa * (NEAR_DEPTH - st.mid[n - 1])).exp();
     source.push(0.0);
     solve_dense(&mut a, source, m)
 }
