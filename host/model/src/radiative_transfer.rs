@@ -212,6 +212,8 @@ impl Lerp {
 /// and the grid are fixed), so they are located on the grid once per
 /// process instead of once per matrix entry.
 struct Stencil {
+    /// [`depth_cells`] and their midpoints.
+    edges: Vec<f64>,
     mid: Vec<f64>,
     /// Per cell pair (i, j), row-major: the direct kernel's integral over
     /// cell j seen from the midpoint of cell i is P(a) + sign P(b), the
@@ -251,6 +253,7 @@ fn stencil() -> &'static Stencil {
             tail.extend(tail_nodes.iter().map(|&(s, _)| at(t0 + s)));
         }
         Stencil {
+            edges,
             mid,
             pairs,
             tail_start,
@@ -319,7 +322,8 @@ fn tail_nodes() -> Vec<(f64, f64)> {
 /// NEAR_DEPTH, B e^{-κ (z - NEAR_DEPTH)}, κ = sqrt(p0² + k²) with p0 =
 /// [`asymptotic_decay`] of `alpha`, B continuous with the last cell.
 fn solve_source(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> Vec<f64> {
-    let source = depth_cells()
+    let source = stencil()
+        .edges
         .windows(2)
         .map(|w| first_collisions(alpha, w[0], w[1]))
         .collect();
@@ -345,6 +349,7 @@ fn solve_source_for(
         .iter()
         .map(|&(s, _)| (-kappa * s).exp())
         .collect();
+    let beyond = p_inf * (-kappa * 60.0).exp();
     let mut a = vec![0.0; m * m];
     for i in 0..n {
         let row = &mut a[i * m..(i + 1) * m];
@@ -362,8 +367,7 @@ fn solve_source_for(
             .zip(&decay)
             .map(|((&(_, w), l), e)| w * l.of(&prim.p) * e)
             .sum();
-        row[n] =
-            -alpha * (-st.tail_start[i].of(&prim.p) + kappa * body + p_inf * (-kappa * 60.0).exp());
+        row[n] = -alpha * (-st.tail_start[i].of(&prim.p) + kappa * body + beyond);
         row[i] += 1.0;
     }
     // B = C(z) continued from the last cell's midpoint.
@@ -424,7 +428,8 @@ fn first_collisions(alpha: f64, lo: f64, hi: f64) -> f64 {
 /// The multiply scattered part of [`solve_source`] on each cell.
 fn multiple_source(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> Vec<f64> {
     let c = solve_source(alpha, p0, k, prim);
-    depth_cells()
+    stencil()
+        .edges
         .windows(2)
         .zip(&c)
         .map(|(w, &cj)| cj - first_collisions(alpha, w[0], w[1]))
@@ -434,7 +439,8 @@ fn multiple_source(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> Vec<f64> {
 /// The multiply scattered exitance M̂_ms(k) at frequency k (single
 /// scattering is integrated exactly elsewhere).
 fn solve_k(alpha: f64, p0: f64, k: f64, prim: &Primitives) -> f64 {
-    depth_cells()
+    stencil()
+        .edges
         .windows(2)
         .zip(multiple_source(alpha, p0, k, prim))
         .map(|(w, c)| c * (prim.at(&prim.p_t, w[1]) - prim.at(&prim.p_t, w[0])))
