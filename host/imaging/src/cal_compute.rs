@@ -153,14 +153,19 @@ pub fn compute(shots: &[CalShot], cal: &mut Calibration, progress: &dyn Fn(&str)
 
 /// The response of every camera with response shots (one curve per channel).
 fn response(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
-    for s in shots {
-        let (frames, exposures) = s.read()?;
-        let b = Bracket { frames, exposures };
-        let curves = (0..3)
-            .map(|c| response::fit_mitsunaga_nayar(&b, c, mn_options()).map(|f| f.curve))
-            .collect::<Result<Vec<_>>>()
-            .map_err(|e| s.fail(format!("response: {e}")))?;
-        cal.camera_mut(s.camera).response = curves;
+    let fitted: Vec<Result<Vec<_>>> = shots
+        .par_iter()
+        .map(|s| {
+            let (frames, exposures) = s.read()?;
+            let b = Bracket { frames, exposures };
+            (0..3)
+                .map(|c| response::fit_mitsunaga_nayar(&b, c, mn_options()).map(|f| f.curve))
+                .collect::<Result<Vec<_>>>()
+                .map_err(|e| s.fail(format!("response: {e}")))
+        })
+        .collect();
+    for (s, curves) in shots.iter().zip(fitted) {
+        cal.camera_mut(s.camera).response = curves?;
     }
     Ok(())
 }
@@ -313,7 +318,6 @@ fn board_view(
 /// image scale's change with the known height separates focal length and
 /// distance, which the flat board alone cannot for the top camera.
 fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
-    let g = hardware::NOMINAL_GEOMETRY;
     // Inner corners of the 60 mm board of 5 mm squares, sample frame.
     let board: Vec<DVec2> = (-5..=5)
         .flat_map(|j| (-5..=5).map(move |i| DVec2::new(i as f64 * SQUARE_MM, j as f64 * SQUARE_MM)))
@@ -321,121 +325,18 @@ fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
     let mut cameras: Vec<usize> = shots.iter().map(|s| s.camera).collect();
     cameras.sort_unstable();
     cameras.dedup();
+    // The cameras are independent; each one's result is applied in order.
+    let fitted: Vec<Result<(CameraModel, f64, Option<DVec3>)>> = cameras
+        .par_iter()
+        .map(|&k| camera_geometry(k, shots, &board))
+        .collect();
     let mut axis_samples = Vec::new();
-    for k in cameras {
-        let mut mine: Vec<&CalShot> = shots.iter().copied().filter(|s| s.camera == k).collect();
-        // On the turntable first: the raised views refer to them.
-        mine.sort_by(|a, b| a.height_mm.total_cmp(&b.height_mm));
-        let b = mine[0].binning;
-        if let Some(s) = mine.iter().find(|s| s.binning != b) {
-            return Err(s.fail(format!("binning {} differs from {b}", s.binning)));
-        }
-        let nominal = nominal_camera(k, b);
-        // Corners of every view at once (the frames are independent); the
-        // raised views are then matched to theirs in order.
-        let found: Vec<Option<PlanarView>> = mine
-            .par_iter()
-            .map(|s| {
-                let (frames, _) = s.read()?;
-                let frame = frames.last().ok_or_else(|| s.fail("no frame"))?;
-                Ok(board_view(
-                    frame,
-                    &nominal,
-                    s.turntable,
-                    s.height_mm,
-                    &board,
-                ))
-            })
-            .collect::<Result<_>>()?;
-        let mut views: Vec<PlanarView> = Vec::new();
-        let mut thetas: Vec<f64> = Vec::new();
-        for (s, found) in mine.iter().zip(found) {
-            let raised = if s.height_mm > 0.0 {
-                let base = (0..views.len())
-                    .find(|&i| views[i].raised.is_none() && (thetas[i] - s.turntable).abs() < 1e-9);
-                match base {
-                    Some(base) => Some(Raised {
-                        base,
-                        height_mm: s.height_mm,
-                    }),
-                    None => continue,
-                }
-            } else {
-                None
-            };
-            let Some(mut v) = found else {
-                continue;
-            };
-            v.raised = raised;
-            views.push(v);
-            thetas.push(s.turntable);
-        }
-        let on_table: Vec<usize> = (0..views.len())
-            .filter(|&i| views[i].raised.is_none())
-            .collect();
-        if on_table.len() < 2 {
-            return Err(Error::Input(format!(
-                "camera {k}: the {} was found in {} of {} views on the turntable (2 needed)",
-                mine[0].target,
-                on_table.len(),
-                mine.iter().filter(|s| s.height_mm <= 0.0).count(),
-            )));
-        }
-        let bf = b as f64;
-        let opts = ZhangOptions {
-            image_width: (g.sensor.width as f64 / bf) as usize,
-            image_height: (g.sensor.height as f64 / bf) as usize,
-            distortion: true,
-            fix_principal_point: true,
-            // The mechanical distance only when no raised view gives it.
-            centre_distance: (on_table.len() == views.len())
-                .then_some((g.cameras[k].distance, 1.0)),
-            initial_focal: Some(g.sensor.focal_px / bf),
-            // The lens's centring tolerance, ~4 px at full resolution.
-            principal_sd: Some(4.0 / bf),
-            // fy apart from fx where the board's tilt does not mimic it.
-            fit_aspect: PI / 2.0 - g.cameras[k].elevation <= ASPECT_MAX_TILT,
-        };
-        let res = zhang::calibrate(&views, opts).map_err(|e| {
-            Error::Numeric(format!(
-                "camera {k}: Zhang's calibration on the {}: {e}",
-                mine[0].target
-            ))
-        })?;
-        // World pose: views are sample -> camera at turntable theta_i; world = Rz(theta) sample.
-        let mut q_sum = glam::DVec4::ZERO;
-        let mut t_sum = DVec3::ZERO;
-        let mut q0: Option<DQuat> = None;
-        for &i in &on_table {
-            let (r, t) = &res.poses[i];
-            let rcw = rodrigues(*r) * DMat3::from_rotation_z(thetas[i]).transpose();
-            let mut q = DQuat::from_mat3(&rcw);
-            if let Some(q0) = q0 {
-                if q.dot(q0) < 0.0 {
-                    q = -q;
-                }
-            } else {
-                q0 = Some(q);
-            }
-            q_sum += glam::DVec4::from(q);
-            t_sum += *t;
-        }
-        let q = DQuat::from_vec4(q_sum).normalize();
-        let model = CameraModel {
-            intrinsics: res.intrinsics,
-            rotation: rodrigues_inv(DMat3::from_quat(q)).to_array(),
-            translation: (t_sum / on_table.len() as f64).to_array(),
-        };
-        // Turntable axis from the relative rotation of the first and last views (sample frame).
-        let r0 = rodrigues(res.poses[on_table[0]].0);
-        let r1 = rodrigues(res.poses[on_table[on_table.len() - 1]].0);
-        let (ax, ang) = DQuat::from_mat3(&(r0.transpose() * r1)).to_axis_angle();
-        if ang.abs() > 0.3 {
-            axis_samples.push(if ax.z < 0.0 { -ax } else { ax });
-        }
+    for (k, fitted) in cameras.into_iter().zip(fitted) {
+        let (model, rms_px, axis) = fitted?;
+        axis_samples.extend(axis);
         let c = cal.camera_mut(k);
-        c.geometry = Some(full_res(&model, bf));
-        c.reprojection_rms_px = Some(res.rms * bf);
+        c.geometry = Some(model);
+        c.reprojection_rms_px = Some(rms_px);
     }
     if !axis_samples.is_empty() {
         let axis = (axis_samples.iter().copied().sum::<DVec3>()).normalize();
@@ -444,6 +345,125 @@ fn geometry(shots: &[&CalShot], cal: &mut Calibration) -> Result<()> {
         });
     }
     Ok(())
+}
+
+/// Camera `k`'s model (full resolution) and reprojection RMS (full-resolution
+/// px) from its checkerboard views, and the turntable axis its views show
+/// when they span enough of a turn.
+fn camera_geometry(
+    k: usize,
+    shots: &[&CalShot],
+    board: &[DVec2],
+) -> Result<(CameraModel, f64, Option<DVec3>)> {
+    let g = hardware::NOMINAL_GEOMETRY;
+    let mut mine: Vec<&CalShot> = shots.iter().copied().filter(|s| s.camera == k).collect();
+    // On the turntable first: the raised views refer to them.
+    mine.sort_by(|a, b| a.height_mm.total_cmp(&b.height_mm));
+    let b = mine[0].binning;
+    if let Some(s) = mine.iter().find(|s| s.binning != b) {
+        return Err(s.fail(format!("binning {} differs from {b}", s.binning)));
+    }
+    let nominal = nominal_camera(k, b);
+    // Corners of every view at once (the frames are independent); the
+    // raised views are then matched to theirs in order.
+    let found: Vec<Option<PlanarView>> = mine
+        .par_iter()
+        .map(|s| {
+            let (frames, _) = s.read()?;
+            let frame = frames.last().ok_or_else(|| s.fail("no frame"))?;
+            Ok(board_view(
+                frame,
+                &nominal,
+                s.turntable,
+                s.height_mm,
+                &board,
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let mut views: Vec<PlanarView> = Vec::new();
+    let mut thetas: Vec<f64> = Vec::new();
+    for (s, found) in mine.iter().zip(found) {
+        let raised = if s.height_mm > 0.0 {
+            let base = (0..views.len())
+                .find(|&i| views[i].raised.is_none() && (thetas[i] - s.turntable).abs() < 1e-9);
+            match base {
+                Some(base) => Some(Raised {
+                    base,
+                    height_mm: s.height_mm,
+                }),
+                None => continue,
+            }
+        } else {
+            None
+        };
+        let Some(mut v) = found else {
+            continue;
+        };
+        v.raised = raised;
+        views.push(v);
+        thetas.push(s.turntable);
+    }
+    let on_table: Vec<usize> = (0..views.len())
+        .filter(|&i| views[i].raised.is_none())
+        .collect();
+    if on_table.len() < 2 {
+        return Err(Error::Input(format!(
+            "camera {k}: the {} was found in {} of {} views on the turntable (2 needed)",
+            mine[0].target,
+            on_table.len(),
+            mine.iter().filter(|s| s.height_mm <= 0.0).count(),
+        )));
+    }
+    let bf = b as f64;
+    let opts = ZhangOptions {
+        image_width: (g.sensor.width as f64 / bf) as usize,
+        image_height: (g.sensor.height as f64 / bf) as usize,
+        distortion: true,
+        fix_principal_point: true,
+        // The mechanical distance only when no raised view gives it.
+        centre_distance: (on_table.len() == views.len()).then_some((g.cameras[k].distance, 1.0)),
+        initial_focal: Some(g.sensor.focal_px / bf),
+        // The lens's centring tolerance, ~4 px at full resolution.
+        principal_sd: Some(4.0 / bf),
+        // fy apart from fx where the board's tilt does not mimic it.
+        fit_aspect: PI / 2.0 - g.cameras[k].elevation <= ASPECT_MAX_TILT,
+    };
+    let res = zhang::calibrate(&views, opts).map_err(|e| {
+        Error::Numeric(format!(
+            "camera {k}: Zhang's calibration on the {}: {e}",
+            mine[0].target
+        ))
+    })?;
+    // World pose: views are sample -> camera at turntable theta_i; world = Rz(theta) sample.
+    let mut q_sum = glam::DVec4::ZERO;
+    let mut t_sum = DVec3::ZERO;
+    let mut q0: Option<DQuat> = None;
+    for &i in &on_table {
+        let (r, t) = &res.poses[i];
+        let rcw = rodrigues(*r) * DMat3::from_rotation_z(thetas[i]).transpose();
+        let mut q = DQuat::from_mat3(&rcw);
+        if let Some(q0) = q0 {
+            if q.dot(q0) < 0.0 {
+                q = -q;
+            }
+        } else {
+            q0 = Some(q);
+        }
+        q_sum += glam::DVec4::from(q);
+        t_sum += *t;
+    }
+    let q = DQuat::from_vec4(q_sum).normalize();
+    let model = CameraModel {
+        intrinsics: res.intrinsics,
+        rotation: rodrigues_inv(DMat3::from_quat(q)).to_array(),
+        translation: (t_sum / on_table.len() as f64).to_array(),
+    };
+    // Turntable axis from the relative rotation of the first and last views (sample frame).
+    let r0 = rodrigues(res.poses[on_table[0]].0);
+    let r1 = rodrigues(res.poses[on_table[on_table.len() - 1]].0);
+    let (ax, ang) = DQuat::from_mat3(&(r0.transpose() * r1)).to_axis_angle();
+    let axis = (ang.abs() > 0.3).then_some(if ax.z < 0.0 { -ax } else { ax });
+    Ok((full_res(&model, bf), res.rms * bf, axis))
 }
 
 /// Relative colour of the cameras from the colour pattern, against the

@@ -279,9 +279,14 @@ pub fn fit_saddle(
             let r = q[4] + a * t1 * t2 - v;
             for i in 0..7 {
                 jtr[i] += j[i] * r;
-                for k in 0..7 {
+                for k in i..7 {
                     jtj[i * 7 + k] += j[i] * j[k];
                 }
+            }
+        }
+        for i in 0..7 {
+            for k in 0..i {
+                jtj[i * 7 + k] = jtj[k * 7 + i];
             }
         }
         let mut improved = false;
@@ -428,25 +433,20 @@ pub fn detect_board(
     if anchors.is_empty() {
         return Err(Error::Input("no predicted corners".into()));
     }
-    let nearest = |p: DVec2| -> Option<DVec2> {
-        saddles
-            .iter()
-            .copied()
-            .filter(|s| (*s - p).length() < tol)
-            .min_by(|a, b| (*a - p).length().total_cmp(&(*b - p).length()))
-    };
-    let mut offsets: Vec<DVec2> = Vec::new();
+    let saddle_grid = PointGrid::new(&saddles, tol);
+    let nearest = |p: DVec2| saddle_grid.nearest(p);
+    // Candidate offsets, each more than 0.5 px from every one kept before it.
+    let mut offsets = PointGrid::new(&[], 0.5);
     for a in &anchors {
         for s in &saddles {
             let off = *s - *a;
-            if off.length() <= 4.0 * square_px + 0.2 * w as f64
-                && offsets.iter().all(|o| (*o - off).length() > 0.5)
-            {
+            if off.length() <= 4.0 * square_px + 0.2 * w as f64 && !offsets.any_within(off) {
                 offsets.push(off);
             }
         }
     }
     let mut votes: Vec<(usize, DVec2)> = offsets
+        .points
         .into_par_iter()
         .map(|off| {
             let n = predicted
@@ -552,6 +552,69 @@ pub fn detect_board(
     Ok(reject_outliers(predicted, found))
 }
 
+/// Points binned in square cells as wide as the query radius, so that a query
+/// looks at nine cells instead of every point (the association compares every
+/// candidate offset's predicted corners with every saddle).
+struct PointGrid {
+    radius: f64,
+    points: Vec<DVec2>,
+    cells: std::collections::HashMap<(i64, i64), Vec<usize>>,
+}
+
+impl PointGrid {
+    fn new(points: &[DVec2], radius: f64) -> PointGrid {
+        let mut grid = PointGrid {
+            radius,
+            points: Vec::with_capacity(points.len()),
+            cells: std::collections::HashMap::new(),
+        };
+        for p in points {
+            grid.push(*p);
+        }
+        grid
+    }
+
+    fn cell(&self, p: DVec2) -> (i64, i64) {
+        let c = (p / self.radius).floor();
+        (c.x as i64, c.y as i64)
+    }
+
+    fn push(&mut self, p: DVec2) {
+        let key = self.cell(p);
+        self.cells.entry(key).or_default().push(self.points.len());
+        self.points.push(p);
+    }
+
+    /// Indices of the points in the nine cells around `p`: all within the radius.
+    fn around(&self, p: DVec2) -> impl Iterator<Item = usize> + '_ {
+        let (cx, cy) = self.cell(p);
+        (-1..=1)
+            .flat_map(move |dy| {
+                (-1..=1).map(move |dx| (cx.saturating_add(dx), cy.saturating_add(dy)))
+            })
+            .flat_map(|key| self.cells.get(&key).into_iter().flatten().copied())
+    }
+
+    /// The point nearest `p` closer than the radius; of equally near ones the
+    /// first pushed (as a linear scan's `min_by` would pick).
+    fn nearest(&self, p: DVec2) -> Option<DVec2> {
+        let mut best: Option<(f64, usize)> = None;
+        for i in self.around(p) {
+            let d = (self.points[i] - p).length();
+            if d < self.radius && best.is_none_or(|(bd, bi)| d < bd || (d == bd && i < bi)) {
+                best = Some((d, i));
+            }
+        }
+        best.map(|(_, i)| self.points[i])
+    }
+
+    /// Whether a point lies within the radius of `p`, bound included.
+    fn any_within(&self, p: DVec2) -> bool {
+        self.around(p)
+            .any(|i| (self.points[i] - p).length() <= self.radius)
+    }
+}
+
 /// Drop corners that a homography through all the others does not explain
 /// (wrong saddle, fit gone astray): residual above 4 times the median and 0.5 px.
 pub fn reject_outliers(predicted: &[DVec2], mut found: Vec<Option<DVec2>>) -> Vec<Option<DVec2>> {
@@ -593,6 +656,35 @@ mod tests {
     use crate::camera::{CameraModel, Intrinsics};
     use crate::synthetic_calibration::{Checkerboard, render_checkerboard};
     use glam::{DMat3, DVec3};
+
+    #[test]
+    fn point_grid_answers_as_a_linear_scan_does() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+        let mut pt = || DVec2::new(rng.random_range(-40.0..40.0), rng.random_range(-40.0..40.0));
+        let points: Vec<DVec2> = (0..300).map(|_| pt()).collect();
+        let radius = 3.0;
+        let grid = PointGrid::new(&points, radius);
+        let mut hits = 0;
+        for _ in 0..2000 {
+            let p = pt();
+            let scan = points
+                .iter()
+                .copied()
+                .filter(|s| (*s - p).length() < radius)
+                .min_by(|a, b| (*a - p).length().total_cmp(&(*b - p).length()));
+            assert_eq!(grid.nearest(p), scan, "at {p}");
+            let within = points.iter().any(|s| (*s - p).length() <= radius);
+            assert_eq!(grid.any_within(p), within, "at {p}");
+            hits += scan.is_some() as usize;
+        }
+        assert!(
+            hits > 500,
+            "{hits} queries found a point: the test shows little"
+        );
+        assert_eq!(grid.nearest(DVec2::new(f64::INFINITY, 0.0)), None);
+        assert_eq!(grid.nearest(DVec2::NAN), None);
+    }
 
     #[test]
     fn corners_found_to_subpixel_despite_a_shifted_prediction() {

@@ -45,22 +45,41 @@ where
                 *c = (*c - r0) / steps[k];
             }
         });
+        // Each column's nonzero rows: a view's pose moves only that view's
+        // residuals, so most pairs of columns never overlap and the products
+        // outside the overlap are exact zeros.
+        let spans: Vec<(usize, usize)> = jac
+            .chunks(m)
+            .map(|col| match col.iter().position(|x| *x != 0.0) {
+                Some(first) => (
+                    first,
+                    m - col.iter().rev().position(|x| *x != 0.0).unwrap_or(0),
+                ),
+                None => (0, 0),
+            })
+            .collect();
         let mut jtj = vec![0.0; n * n];
         let mut jtr = vec![0.0; n];
         jtj.par_chunks_mut(n).enumerate().for_each(|(a, row)| {
             let ja = &jac[a * m..(a + 1) * m];
             for (b, v) in row.iter_mut().enumerate().skip(a) {
                 let jb = &jac[b * m..(b + 1) * m];
-                *v = ja.iter().zip(jb).map(|(x, y)| x * y).sum();
+                let (lo, hi) = (spans[a].0.max(spans[b].0), spans[a].1.min(spans[b].1));
+                *v = if lo < hi {
+                    ja[lo..hi].iter().zip(&jb[lo..hi]).map(|(x, y)| x * y).sum()
+                } else {
+                    0.0
+                };
             }
         });
         for a in 0..n {
             for b in 0..a {
                 jtj[a * n + b] = jtj[b * n + a];
             }
-            jtr[a] = jac[a * m..(a + 1) * m]
+            let (lo, hi) = spans[a];
+            jtr[a] = jac[a * m + lo..a * m + hi]
                 .iter()
-                .zip(&r)
+                .zip(&r[lo..hi])
                 .map(|(x, y)| x * y)
                 .sum();
         }
