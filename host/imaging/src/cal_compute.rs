@@ -376,7 +376,7 @@ fn camera_geometry(
                 &nominal,
                 s.turntable,
                 s.height_mm,
-                &board,
+                board,
             ))
         })
         .collect::<Result<_>>()?;
