@@ -371,13 +371,7 @@ fn camera_geometry(
         .map(|s| {
             let (frames, _) = s.read()?;
             let frame = frames.last().ok_or_else(|| s.fail("no frame"))?;
-            Ok(board_view(
-                frame,
-                &nominal,
-                s.turntable,
-                s.height_mm,
-                board,
-            ))
+            Ok(board_view(frame, &nominal, s.turntable, s.height_mm, board))
         })
         .collect::<Result<_>>()?;
     let mut views: Vec<PlanarView> = Vec::new();
