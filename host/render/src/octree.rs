@@ -13,6 +13,7 @@
 
 use glam::{Vec3, Vec4};
 use qhm_model::DipoleParams;
+use rayon::prelude::*;
 
 use crate::light::luminance;
 use crate::points::SurfaceSamples;
@@ -92,6 +93,7 @@ impl RdTable {
             })
             .collect();
         let values = (0..n)
+            .into_par_iter()
             .map(|k| {
                 let r = k as f64 * dr;
                 let v = if rho == 0.0 {
