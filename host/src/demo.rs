@@ -302,6 +302,12 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     };
     // Only a demo that can start makes its output directory.
     prepare_out(&opts.out, opts.force)?;
+    // The fit's radiative-transfer tables for eta (some CPU seconds), built
+    // while the captures leave cores idle; the fit then finds them made.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    crate::idle::in_idle_time(threads, move || {
+        qhm_model::radiative_transfer::HalfSpace::shared(eta);
+    })?;
     let mut stages = Stages {
         quiet: opts.quiet,
         times: Vec::new(),

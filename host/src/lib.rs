@@ -9,6 +9,7 @@
 
 pub mod calibrate;
 pub mod demo;
+pub mod idle;
 pub mod output;
 pub mod pipeline;
 pub mod real_rig;
