@@ -491,7 +491,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
         sample: opts.sample.clone(),
         scale: opts.scale.name().to_string(),
         seed: opts.seed,
-        recovered: model.dipole.clone(),
+        recovered: model.dipole,
         reference: reference(&opts.sample),
         calibration_rows_within_target: cal_ok,
         calibration_rows: cal_rows,
