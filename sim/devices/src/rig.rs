@@ -375,6 +375,9 @@ impl SimRig {
 impl Drop for SimRig {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        // The host hangs up first: a rig powered down under an open link
+        // would be reported to its subscribers as a lost link.
+        self.link.close();
         self.handle.rig.shutdown();
     }
 }
