@@ -244,17 +244,23 @@ pub fn fit_saddle(
     let (m0, a0) = lin(&q)?;
     q[4] = m0;
     q[5] = a0;
-    let cost = |q: &[f64; 7]| {
+    // The cost at q, keeping the model's two tanh at every pixel: the
+    // Jacobian at an accepted q reuses them (the exponentials are most of
+    // the fit's time).
+    let cost = |q: &[f64; 7], tanhs: &mut Vec<(f64, f64)>| {
         let g = geom(q);
-        px.iter()
-            .map(|&(d, v)| {
-                let (t1, t2, ..) = model(&g, d);
-                let r = q[4] + q[5] * t1 * t2 - v;
-                r * r
-            })
-            .sum::<f64>()
+        tanhs.clear();
+        let mut sum = 0.0;
+        for &(d, v) in &px {
+            let (t1, t2, ..) = model(&g, d);
+            tanhs.push((t1, t2));
+            let r = q[4] + q[5] * t1 * t2 - v;
+            sum += r * r;
+        }
+        sum
     };
-    let mut c0 = cost(&q);
+    let (mut at_q, mut at_trial) = (Vec::with_capacity(px.len()), Vec::with_capacity(px.len()));
+    let mut c0 = cost(&q, &mut at_q);
     let mut lambda = 1e-3;
     for _ in 0..50 {
         let mut jtj = [0.0; 49];
@@ -263,8 +269,8 @@ pub fn fit_saddle(
         let (c, n1, n2, ww) = (g.c, g.n1, g.n2, g.ww);
         let (p1, p2) = (n1.perp(), n2.perp()); // (-sin, cos)
         let a = q[5];
-        for &(d, v) in &px {
-            let (t1, t2, d1, d2) = model(&g, d);
+        for (&(d, v), &(t1, t2)) in px.iter().zip(&at_q) {
+            let (d1, d2) = ((d - c).dot(n1), (d - c).dot(n2));
             let (g1, g2) = ((1.0 - t1 * t1) / ww, (1.0 - t2 * t2) / ww);
             let dc = -(n1 * (g1 * t2) + n2 * (t1 * g2)) * a;
             let j = [
@@ -305,8 +311,9 @@ pub fn fit_saddle(
                 nq[i] += step[i];
             }
             nq[6] = nq[6].clamp(-3.0, 2.5);
-            let c1 = cost(&nq);
+            let c1 = cost(&nq, &mut at_trial);
             if c1 < c0 {
+                std::mem::swap(&mut at_q, &mut at_trial);
                 let done = (c0 - c1) < 1e-10 * c0 || step[0].hypot(step[1]) < 1e-4;
                 q = nq;
                 c0 = c1;
