@@ -443,18 +443,17 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                     scene.lights = lights;
                     scene.env_visible = env.is_some();
                     scene.env = env;
-                    let mut stats = RenderStats::default();
-                    let prep = match prepared.take() {
-                        None => prepare(&scene, &model, &settings, &mut stats)?,
-                        Some(mut p) => {
-                            p.relight(&scene, &model, &settings, &mut stats)?;
+                    let stats = &mut RenderStats::default();
+                    let prep = match prepared.as_mut() {
+                        Some(p) => {
+                            p.relight(&scene, &model, &settings, stats)?;
                             p
                         }
+                        None => prepared.insert(prepare(&scene, &model, &settings, stats)?),
                     };
                     let (img, _) =
-                        render_prepared(&scene, &model, &settings, &prep, &AtomicBool::new(false))
+                        render_prepared(&scene, &model, &settings, prep, &AtomicBool::new(false))
                             .context("render cancelled")?;
-                    prepared = Some(prep);
                     let stem = format!("{object}-{light_name}");
                     img.write_exr(&renders_dir.join(format!("{stem}.exr")))?;
                     img.write_png(&renders_dir.join(format!("{stem}.png")), None)?;

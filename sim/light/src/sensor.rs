@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::RadianceImage;
-use crate::rng::{Rng, mix64};
+use crate::rng::{Normals, Rng, mix64};
 
 /// Electrons per (W sr^-1 m^-2 * s) at colour gain 1: a 1 W sr^-1 m^-2
 /// radiance fills the well in 10 ms at unity gain.
@@ -152,50 +152,9 @@ impl Sensor {
     }
 }
 
-/// Standard normals by Box-Muller two at a time (the cosine and the sine
-/// half of one pair of uniforms): the read noise of every pixel and channel
-/// needs one, and a logarithm, a square root and a sine-cosine per two
-/// normals is half the cost of one per normal.
-#[derive(Default)]
-struct Normals {
-    spare: Option<f64>,
-}
-
-impl Normals {
-    #[inline]
-    fn next(&mut self, rng: &mut Rng) -> f64 {
-        if let Some(z) = self.spare.take() {
-            return z;
-        }
-        let u1 = 1.0 - rng.uniform_f64();
-        let u2 = rng.uniform_f64();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let (s, c) = (std::f64::consts::TAU * u2).sin_cos();
-        self.spare = Some(r * s);
-        r * c
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn read_noise_normals_are_standard_and_their_pairs_uncorrelated() {
-        let mut rng = Rng::new(3, 0);
-        let mut normals = Normals::default();
-        let n = 200_000;
-        let z: Vec<f64> = (0..n).map(|_| normals.next(&mut rng)).collect();
-        let mean = z.iter().sum::<f64>() / n as f64;
-        let var = z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64;
-        let tail = z.iter().filter(|v| v.abs() > 2.0).count() as f64 / n as f64;
-        // the two halves of each pair
-        let pair = z.chunks(2).map(|p| p[0] * p[1]).sum::<f64>() / (n / 2) as f64;
-        assert!(mean.abs() < 0.01, "mean {mean}");
-        assert!((var - 1.0).abs() < 0.01, "variance {var}");
-        assert!((tail - 0.0455).abs() < 0.002, "P(|z| > 2) = {tail}");
-        assert!(pair.abs() < 0.01, "pair correlation {pair}");
-    }
 
     fn flat(l: f32) -> RadianceImage {
         RadianceImage {
