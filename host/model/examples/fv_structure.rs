@@ -2,11 +2,15 @@
 //! `cargo run --release -p qhm-model --example fv_structure -- MODEL_DIR CAPTURE_DIR`.
 //! Prints [`qhm_model::streaks::SweepStructure`] of the f_v and LRF maps
 //! (sweep axis from the capture's pass-2 stripe lines) and the LRF noise
-//! per texel ([`qhm_model::denoise::texel_noise`]).
+//! per texel ([`qhm_model::denoise::texel_noise`]), and the same structure
+//! measure on the capture's lamp images over the model's window: what the
+//! cameras' own resolution (foreshortened along an oblique view's tilt)
+//! puts into a map with no sweep in it, the yardstick of the f_v figure.
 
 use std::path::PathBuf;
 
 use qhm_model::MaterialModel;
+use qhm_model::model::Texture;
 use qhm_model::rectified::Rectified;
 use qhm_model::streaks::{sweep_axis, sweep_structure};
 
@@ -37,6 +41,9 @@ fn main() {
     println!("texture {}x{}", model.width, model.height);
     println!("f_v: {}", sweep_structure(&fv, axis));
     println!("LRF: {}", sweep_structure(&lrf, axis));
+    let lamps = lamp_images(&model, &data);
+    let refs: Vec<&Texture> = lamps.iter().collect();
+    println!("lamp images: {}", sweep_structure(&refs, axis));
     if std::env::var_os("ROWS").is_some() {
         for (k, t) in fv.iter().enumerate() {
             println!(
@@ -71,7 +78,33 @@ fn main() {
     }
     let noise = qhm_model::denoise::texel_noise(&model.lrf.maps);
     println!(
-        "LRF noise per texel (1/sr, RMS of the texel minus its 3x3 neighbours' median, mean over samples): R {:.4e} G {:.4e} B {:.4e}",
+        "LRF noise per texel (1/sr, RMS of a texel minus the mean of its 4 neighbours, over sqrt(1.25)): R {:.4e} G {:.4e} B {:.4e}",
         noise[0], noise[1], noise[2]
     );
+}
+
+/// The capture's lamp images cut to the model's window.
+fn lamp_images(model: &MaterialModel, data: &Rectified) -> Vec<Texture> {
+    let grid = data.index.grid;
+    let [i0, j0, w, h] = model
+        .diagnostics
+        .as_ref()
+        .and_then(|d| d.window)
+        .unwrap_or([0, 0, grid.width, grid.height])
+        .map(|x| x as usize);
+    data.index
+        .lamp
+        .iter()
+        .map(|e| {
+            let t = data.read_image(&e.file).unwrap_or_else(|e| {
+                eprintln!("error: {e}");
+                std::process::exit(1)
+            });
+            Texture {
+                width: w,
+                height: h,
+                data: (0..w * h).map(|p| t.get(i0 + p % w, j0 + p / w)).collect(),
+            }
+        })
+        .collect()
 }
