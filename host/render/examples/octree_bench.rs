@@ -3,7 +3,7 @@
 //! of surface samples, and the octree's speed-up over the brute-force dipole
 //! sum (timed on a few thousand surface points, with the relative RMS error).
 //!
-//!   cargo run --release -p qhm-render --example bench -- [OUT.png] [preset] [size] [epsilon] [surface samples]
+//!   cargo run --release -p qhm-render --example octree_bench -- [OUT.png] [preset] [size] [epsilon] [surface samples]
 
 use std::path::PathBuf;
 

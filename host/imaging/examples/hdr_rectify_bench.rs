@@ -1,6 +1,6 @@
 //! Throughput of HDR merge + rectification, and the data for the OpenCV
 //! comparison (bench/hdr_opencv.py). Run:
-//! `cargo run --release -p qhm-imaging --example bench -- [OUT_DIR]`
+//! `cargo run --release -p qhm-imaging --example hdr_rectify_bench -- [OUT_DIR]`
 //! Writes OUT_DIR/bracket_{k}.png, OUT_DIR/exposures.txt and OUT_DIR/qhm_hdr.exr,
 //! prints megapixels per second per core and the extrapolation to a
 //! paper-scale capture on one core and on a 16-core node, against the
