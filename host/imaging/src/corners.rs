@@ -244,16 +244,17 @@ pub fn fit_saddle(
     let (m0, a0) = lin(&q)?;
     q[4] = m0;
     q[5] = a0;
-    // The cost at q, keeping the model's two tanh at every pixel: the
-    // Jacobian at an accepted q reuses them (the exponentials are most of
-    // the fit's time).
-    let cost = |q: &[f64; 7], tanhs: &mut Vec<(f64, f64)>| {
+    // The cost at q, keeping the model at every pixel: the Jacobian at an
+    // accepted q reuses it (the tanh's exponentials are most of the fit's
+    // time).
+    let cost = |q: &[f64; 7], at: &mut Vec<(f64, f64, f64, f64)>| {
         let g = geom(q);
-        tanhs.clear();
+        at.clear();
         let mut sum = 0.0;
         for &(d, v) in &px {
-            let (t1, t2, ..) = model(&g, d);
-            tanhs.push((t1, t2));
+            let m = model(&g, d);
+            at.push(m);
+            let (t1, t2, ..) = m;
             let r = q[4] + q[5] * t1 * t2 - v;
             sum += r * r;
         }
@@ -269,8 +270,7 @@ pub fn fit_saddle(
         let (c, n1, n2, ww) = (g.c, g.n1, g.n2, g.ww);
         let (p1, p2) = (n1.perp(), n2.perp()); // (-sin, cos)
         let a = q[5];
-        for (&(d, v), &(t1, t2)) in px.iter().zip(&at_q) {
-            let (d1, d2) = ((d - c).dot(n1), (d - c).dot(n2));
+        for (&(d, v), &(t1, t2, d1, d2)) in px.iter().zip(&at_q) {
             let (g1, g2) = ((1.0 - t1 * t1) / ww, (1.0 - t2 * t2) / ww);
             let dc = -(n1 * (g1 * t2) + n2 * (t1 * g2)) * a;
             let j = [
