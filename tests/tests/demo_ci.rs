@@ -80,6 +80,27 @@ fn ci_demo_recovers_the_homogeneous_sample() {
         }
     }
 
+    // Against the simulator's own tally of the light that enters (the
+    // marble's top is smooth, so it is the Fresnel ratio too; measured: 1.4 %
+    // at most), and a fit 5 % low fails the same bound.
+    let world = sim_light::World::new(
+        sim_light::SceneDesc::preset(sample).unwrap(),
+        sim_light::RigTruth::nominal(),
+        sim_light::SimQuality::ci(),
+    )
+    .unwrap();
+    let checks = host::entrance_check::check_entrance(&world, &model, 100_000, 1).unwrap();
+    let worst = host::entrance_check::worst_error(&checks);
+    assert!(worst < 0.03, "f against the true entrance: {worst}");
+    let low: Vec<_> = checks
+        .into_iter()
+        .map(|mut c| {
+            c.fitted = c.fitted.map(|f| 0.95 * f);
+            c
+        })
+        .collect();
+    assert!(host::entrance_check::worst_error(&low) > 0.03);
+
     // A second run into the same, now non-empty, directory is refused.
     let err = run(&opts).unwrap_err();
     assert!(format!("{err:#}").contains("--force"), "{err:#}");

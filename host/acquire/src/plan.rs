@@ -202,7 +202,10 @@ impl PlanConfig {
                 clamp_elevations: vec![45.0 * DEG, 90.0 * DEG],
                 entrance_arc_rotations: 2,
                 entrance_turntable: 1,
-                entrance_cameras: vec![7],
+                // Camera 3 sees the vertical stripes of pass 2 in the same
+                // view, so f(w_i) compares like with like; camera 7 sees
+                // the vertical laser's mirror reflection.
+                entrance_cameras: vec![3, 7],
                 exiting_turntable: 2,
                 reflectance_arc_rotations: 1,
                 reflectance_turntable: 2,

@@ -48,6 +48,10 @@ pub struct EntranceArgs {
     /// Incidence angles from the normal, degrees in [0, 89] (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0])]
     pub theta: Vec<f64>,
+    /// A model fitted from a capture of this sample: compare its measured f(w_i)
+    /// with the truth at each of its laser directions (instead of --theta).
+    #[arg(long, value_name = "MODEL_DIR", conflicts_with = "theta")]
+    pub model: Option<PathBuf>,
     /// Colour channel: red, green or blue.
     #[arg(long, default_value = "green")]
     pub channel: String,
@@ -334,6 +338,9 @@ fn entrance(e: EntranceArgs) -> Result<ExitCode> {
         RigTruth::nominal(),
         SimQuality::ci(),
     )?;
+    if let Some(dir) = &e.model {
+        return entrance_against_model(&world, dir, &e);
+    }
     let points =
         sim_light::entrance::entrance_function(&world, &e.theta, channel, e.photons, e.seed)?;
     let mut out = std::io::stdout().lock();
@@ -342,21 +349,59 @@ fn entrance(e: EntranceArgs) -> Result<ExitCode> {
     } else {
         writeln!(
             out,
-            "theta_deg  f            f/f(0)            T/T(0)   (f/f(0)) / (T/T(0))"
+            "theta_deg  f            f/f(0)            T/T(0)   (f/f(0)) / (T/T(0))  exitance  its ratio"
         )?;
         for p in &points {
             writeln!(
                 out,
-                "{:9.1}  {:.5}  {:.5} +- {:.5}  {:.5}  {:.4}",
+                "{:9.1}  {:.5}  {:.5} +- {:.5}  {:.5}  {:.4}               {:.5}   {:.5} +- {:.5}",
                 p.theta_deg,
                 p.f,
                 p.ratio,
                 p.ratio_err,
                 p.fresnel_ratio,
-                p.ratio / p.fresnel_ratio
+                p.ratio / p.fresnel_ratio,
+                p.exitance,
+                p.exitance_ratio,
+                p.exitance_ratio_err
             )?;
         }
     }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn entrance_against_model(world: &World, dir: &Path, e: &EntranceArgs) -> Result<ExitCode> {
+    let model = qhm_model::MaterialModel::load(dir)
+        .with_context(|| format!("loading the model {}", dir.display()))?;
+    let checks = host::entrance_check::check_entrance(world, &model, e.photons, e.seed)?;
+    let worst = host::entrance_check::worst_error(&checks);
+    let mut out = std::io::stdout().lock();
+    if e.json {
+        let v = serde_json::json!({ "directions": checks, "worst_error": worst });
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    writeln!(
+        out,
+        "theta_deg  phi_deg  fitted R / G / B          true f/f(0)       T/T(0)  error R / G / B         exitance ratio R / G / B"
+    )?;
+    for c in &checks {
+        let [er, eg, eb] = c.errors().map(|x| 100.0 * x);
+        let [xr, xg, xb] = c.exitance;
+        writeln!(
+            out,
+            "{:9.1}  {:7.1}  {:.4} / {:.4} / {:.4}  {:.4} +- {:.4}  {:.4}  {er:+5.1} / {eg:+5.1} / {eb:+5.1} %  {xr:.4} / {xg:.4} / {xb:.4}",
+            c.theta_deg,
+            c.phi_deg,
+            c.fitted[0],
+            c.fitted[1],
+            c.fitted[2],
+            c.truth,
+            c.truth_err,
+            c.fresnel
+        )?;
+    }
+    writeln!(out, "worst |fitted / true - 1|: {:.1} %", 100.0 * worst)?;
     Ok(ExitCode::SUCCESS)
 }
 

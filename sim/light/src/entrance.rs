@@ -30,6 +30,12 @@ pub struct EntrancePoint {
     pub ratio_err: f64,
     /// Fresnel T(theta) / T(0) of the sample's top index (a smooth boundary).
     pub fresnel_ratio: f64,
+    /// The share of the incident flux that leaves through the top after
+    /// subsurface transport (the diffuse exitance, in this channel), and its
+    /// ratio to the vertical's: what laser stripes measure of f.
+    pub exitance: f64,
+    pub exitance_ratio: f64,
+    pub exitance_ratio_err: f64,
 }
 
 /// Unpolarised Fresnel transmittance from air into index `eta` at `theta_deg`.
@@ -76,28 +82,36 @@ pub fn entrance_function(
         };
         let t = world.trace(&source, channel, photons, seed ^ (k << 32), None);
         let hit = (t.launched - t.missed).max(1) as f64;
-        let f = t.entered as f64 / hit;
-        (f, (f * (1.0 - f) / hit).sqrt())
+        let share = |n: u64| {
+            let p = n as f64 / hit;
+            (p, (p * (1.0 - p) / hit).sqrt())
+        };
+        (share(t.entered), share(t.exited))
     };
-    let (f0, e0) = measure(0.0, 0);
+    let ((f0, e0), (x0, xe0)) = measure(0.0, 0);
     let t0 = fresnel_transmittance(0.0, eta);
     Ok(thetas_deg
         .iter()
         .enumerate()
         .map(|(k, &theta)| {
-            let (f, e) = if theta == 0.0 {
-                (f0, e0)
+            let ((f, e), (x, xe)) = if theta == 0.0 {
+                ((f0, e0), (x0, xe0))
             } else {
                 measure(theta, k as u64 + 1)
             };
-            let ratio = f / f0;
+            let ratio_err = |p: f64, pe: f64, q: f64, qe: f64| {
+                p / q * ((pe / p.max(1e-12)).powi(2) + (qe / q.max(1e-12)).powi(2)).sqrt()
+            };
             EntrancePoint {
                 theta_deg: theta,
                 f,
                 f_err: e,
-                ratio,
-                ratio_err: ratio * ((e / f.max(1e-12)).powi(2) + (e0 / f0).powi(2)).sqrt(),
+                ratio: f / f0,
+                ratio_err: ratio_err(f, e, f0, e0),
                 fresnel_ratio: fresnel_transmittance(theta, eta) / t0,
+                exitance: x,
+                exitance_ratio: x / x0.max(1e-12),
+                exitance_ratio_err: ratio_err(x, xe, x0, xe0),
             }
         })
         .collect())

@@ -28,7 +28,6 @@ pub(super) fn fit_entrance(
 ) -> Result<(EntranceFunction, Vec<([f32; 3], [f32; 3])>), ModelError> {
     let is_vertical = |d: [f64; 3]| d[2] > (2f64).to_radians().cos();
     // Mean per-stripe exitance flux / incident flux, keyed by (light, view, channel).
-    let mut groups: BTreeMap<([i64; 3], [i64; 3], u8), (f64, usize, [f64; 3])> = BTreeMap::new();
     if !data.index.stripe.iter().any(|s| s.pass == 1) {
         notes.push(
             "no pass-1 images: entrance function set to the smooth-surface Fresnel ratio".into(),
@@ -119,27 +118,37 @@ pub(super) fn fit_entrance(
             used.len()
         ));
     }
-    for ((s, light), flux) in used.iter().zip(light_keys).zip(fluxes) {
-        let Some(flux) = flux else { continue };
-        let e = groups
-            .entry((light, dir_key(s.view_dir), s.channel))
-            .or_insert((0.0, 0, s.light_dir));
-        e.0 += flux;
-        e.1 += 1;
-    }
-    let mean = |g: &(f64, usize, [f64; 3])| g.0 / g.1 as f64;
-    // The vertical's flux per channel, averaged over its views.
+    let images: Vec<BandFlux> = used
+        .iter()
+        .zip(light_keys)
+        .zip(fluxes)
+        .filter_map(|((s, light), flux)| {
+            Some(BandFlux {
+                light,
+                light_dir: s.light_dir,
+                view: dir_key(s.view_dir),
+                stripe: s,
+                flux: flux?,
+            })
+        })
+        .collect();
+    // The vertical's flux per channel, averaged over its views: the
+    // reference of a view that has no vertical stripe of its own.
     let mean_reference: [f64; 3] = std::array::from_fn(|c| {
-        let per_view: Vec<f64> = groups
+        let mut per_view: BTreeMap<[i64; 3], (f64, usize)> = BTreeMap::new();
+        for b in images
             .iter()
-            .filter(|((l, _, ch), _)| *l == VERTICAL_KEY && *ch as usize == c)
-            .map(|(_, g)| mean(g))
-            .collect();
-        per_view.iter().sum::<f64>() / per_view.len() as f64
+            .filter(|b| b.light == VERTICAL_KEY && b.stripe.channel as usize == c)
+        {
+            let e = per_view.entry(b.view).or_default();
+            e.0 += b.flux;
+            e.1 += 1;
+        }
+        per_view.values().map(|(f, n)| f / *n as f64).sum::<f64>() / per_view.len() as f64
     });
     let mut lights: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
-    for (k, v) in &groups {
-        lights.entry(k.0).or_insert(v.2);
+    for b in &images {
+        lights.entry(b.light).or_insert(b.light_dir);
     }
     let mut samples: Vec<([f32; 3], [f32; 3])> = vec![([0.0, 0.0, 1.0], [1.0; 3])];
     for (lk, ld) in &lights {
@@ -151,17 +160,26 @@ pub(super) fn fit_entrance(
         }
         let mut value = [f32::NAN; 3];
         for c in 0..3u8 {
-            // Σ over the light's views of its flux and of the vertical's in
-            // the same view, or the vertical's mean over views where that
-            // view has no reference.
+            // Each oblique stripe against the vertical stripe of its view
+            // whose line lies nearest its own (the same stretch of a
+            // heterogeneous sample), or, where the light has no view with a
+            // vertical stripe, the vertical's mean over views.
+            let oblique: Vec<&BandFlux> = images
+                .iter()
+                .filter(|b| b.light == *lk && b.stripe.channel == c)
+                .collect();
+            let paired: Vec<(f64, Option<f64>)> = oblique
+                .iter()
+                .map(|b| (b.flux, nearest_vertical(&images, b)))
+                .collect();
+            let same_view = paired.iter().any(|(_, r)| r.is_some());
             let (mut num, mut den) = (0.0, 0.0);
-            for ((l, v, ch), g) in &groups {
-                if l == lk && *ch == c {
-                    num += mean(g);
-                    den += groups
-                        .get(&(VERTICAL_KEY, *v, c))
-                        .map_or(mean_reference[c as usize], mean);
+            for (flux, reference) in paired {
+                if same_view && reference.is_none() {
+                    continue;
                 }
+                num += flux;
+                den += reference.unwrap_or(mean_reference[c as usize]);
             }
             value[c as usize] = (num / den) as f32;
         }
@@ -212,6 +230,37 @@ pub(super) fn fit_entrance(
     }
     Ok((table, samples))
 }
+
+/// One stripe image's band flux per incident flux, with its light and view.
+struct BandFlux<'a> {
+    light: [i64; 3],
+    light_dir: [f64; 3],
+    view: [i64; 3],
+    stripe: &'a StripeEntry,
+    flux: f64,
+}
+
+/// The band flux of the vertical stripe in `b`'s view and channel whose line
+/// is parallel to `b`'s (within 5 degrees) and nearest it.
+fn nearest_vertical(images: &[BandFlux], b: &BandFlux) -> Option<f64> {
+    let (d, p) = (b.stripe.line_dir, b.stripe.line_point);
+    images
+        .iter()
+        .filter(|r| {
+            r.light == VERTICAL_KEY
+                && r.view == b.view
+                && r.stripe.channel == b.stripe.channel
+                && (r.stripe.line_dir[0] * d[0] + r.stripe.line_dir[1] * d[1]).abs()
+                    > PARALLEL_LINES_COS
+        })
+        .map(|r| (r.stripe.distance(p), r.flux))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, flux)| flux)
+}
+
+/// Stripe lines within 5 degrees of each other are parallel.
+const PARALLEL_LINES_COS: f64 = 0.996_194_698_091_745_5;
+
 /// How far the window reaches from the stripe's line on its nearer side, mm
 /// (the signed distance is linear: its extremes sit at corner texels).
 fn band_extent(s: &StripeEntry, grid: &Grid) -> f64 {
@@ -241,4 +290,68 @@ fn band_flux(img: &Texture, s: &StripeEntry, grid: &Grid, reach: f64) -> f64 {
         }
     }
     bins.means().into_iter().flatten().sum::<f64>() * grid.texel_mm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stripe(
+        pass: u8,
+        light_dir: [f64; 3],
+        view_dir: [f64; 3],
+        x0: f64,
+        dir: [f64; 2],
+    ) -> StripeEntry {
+        StripeEntry {
+            file: String::new(),
+            pass,
+            channel: 1,
+            light_dir,
+            view_dir,
+            camera: 3,
+            flux_per_mm: 1.0,
+            line_point: [x0, 0.0],
+            line_dir: dir,
+        }
+    }
+
+    #[test]
+    fn an_oblique_stripe_is_paired_with_the_nearest_parallel_vertical_line_of_its_view() {
+        let (up, oblique) = ([0.0, 0.0, 1.0], [0.0, 0.707, 0.707]);
+        let (view, other_view) = ([0.788, 0.0, 0.616], [-0.788, 0.0, 0.616]);
+        let y = [0.0, 1.0];
+        let stripes = [
+            stripe(2, up, view, 0.0, y),
+            stripe(2, up, view, 6.0, y),
+            // Nearer, but in another view or across the line.
+            stripe(2, up, other_view, 5.5, y),
+            stripe(2, up, view, 5.5, [1.0, 0.0]),
+            stripe(1, oblique, view, 5.4, y),
+        ];
+        let images: Vec<BandFlux> = stripes
+            .iter()
+            .enumerate()
+            .map(|(k, s)| BandFlux {
+                light: if s.pass == 2 {
+                    VERTICAL_KEY
+                } else {
+                    dir_key(oblique)
+                },
+                light_dir: s.light_dir,
+                view: dir_key(s.view_dir),
+                stripe: s,
+                flux: k as f64 + 1.0,
+            })
+            .collect();
+        assert_eq!(nearest_vertical(&images, &images[4]), Some(2.0));
+        // A view without a vertical stripe has no pair.
+        let alone = stripe(1, oblique, [0.0, 0.0, 1.0], 5.4, y);
+        let b = BandFlux {
+            view: dir_key(alone.view_dir),
+            stripe: &alone,
+            ..images[4]
+        };
+        assert_eq!(nearest_vertical(&images, &b), None);
+    }
 }
