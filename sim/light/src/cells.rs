@@ -36,6 +36,59 @@ pub struct WallHit {
     pub normal: Vec3,
 }
 
+/// Spheres per [`Block`]: one SSE register per coordinate.
+const LANES: usize = 4;
+
+/// Up to four spheres of one grid cell in lanes (one cache line), so the
+/// tests run without branches; unused lanes hold [`EMPTY`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C, align(64))]
+struct Block {
+    x: [f32; LANES],
+    y: [f32; LANES],
+    z: [f32; LANES],
+    /// Squared radius.
+    r2: [f32; LANES],
+}
+
+/// A sphere no line reaches and no point lies in (radius 0, far away).
+const EMPTY: [f32; 4] = [1e9, 1e9, 1e9, 0.0];
+
+/// A lane-wise value; written so that the compiler vectorises it.
+#[inline(always)]
+fn lanes(f: impl FnMut(usize) -> f32) -> [f32; LANES] {
+    std::array::from_fn(f)
+}
+
+/// Lane-wise `if m { a } else { b }`.
+#[inline(always)]
+fn select<T: Copy>(m: [bool; LANES], a: [T; LANES], b: [T; LANES]) -> [T; LANES] {
+    std::array::from_fn(|j| if m[j] { a[j] } else { b[j] })
+}
+
+/// Index of the largest lane (the first of equals).
+#[inline(always)]
+fn argmax(v: [f32; LANES]) -> usize {
+    let mut j = 0;
+    for i in 1..LANES {
+        if v[i] > v[j] {
+            j = i;
+        }
+    }
+    j
+}
+
+/// Blocks of a grid cell's list whose pore-crossing intervals `Cells::cross`
+/// keeps (longer lists take one grid lookup per overlapping cell).
+const MAX_SWEEP: usize = 16;
+
+/// floor(x) for |x| < 2^31 without a libm call (no SSE4.1 round by default).
+#[inline(always)]
+fn floor_i(x: f32) -> i32 {
+    let i = x as i32;
+    i - (x < i as f32) as i32
+}
+
 /// A periodic tiling of air cells (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Cells {
@@ -54,11 +107,12 @@ pub struct Cells {
     ng: i32,
     g: f32,
     inv_g: f32,
-    /// Start of each grid cell's list in `spheres` (ng^3 + 1 entries).
+    inv_l: f32,
+    /// First block of each grid cell's list in `blocks` (ng^3 + 1 entries).
     start: Vec<u32>,
-    /// Centre (in the tile's frame; periodic images may lie outside it) and
-    /// squared radius, per list entry.
-    spheres: Vec<[f32; 4]>,
+    /// Centres (in the tile's frame; periodic images may lie outside it) and
+    /// squared radii of the spheres touching each grid cell.
+    blocks: Vec<Block>,
 }
 
 impl Cells {
@@ -111,7 +165,11 @@ impl Cells {
         // grid: cells about the mean radius wide (as fast as half of it, with
         // a quarter of the memory), at most 128 per side
         let mean_radius = 0.5 * (r0 + r1);
-        let ng = ((l / mean_radius).floor() as i32).clamp(1, 128);
+        let gf: f32 = std::env::var("QHM_GF")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1.0);
+        let ng = ((l / (gf * mean_radius)).floor() as i32).clamp(1, 128);
         let g = l / ng as f32;
         let n3 = (ng * ng * ng) as usize;
         let mut lists: Vec<Vec<[f32; 4]>> = vec![Vec::new(); n3];
@@ -153,12 +211,23 @@ impl Cells {
             }
         }
         let mut start = Vec::with_capacity(n3 + 1);
-        let mut spheres = Vec::new();
+        let mut blocks = Vec::new();
         for list in &lists {
-            start.push(spheres.len() as u32);
-            spheres.extend_from_slice(list);
+            start.push(blocks.len() as u32);
+            for chunk in list.chunks(LANES) {
+                let mut b = Block {
+                    x: [EMPTY[0]; LANES],
+                    y: [EMPTY[1]; LANES],
+                    z: [EMPTY[2]; LANES],
+                    r2: [EMPTY[3]; LANES],
+                };
+                for (k, s) in chunk.iter().enumerate() {
+                    (b.x[k], b.y[k], b.z[k], b.r2[k]) = (s[0], s[1], s[2], s[3]);
+                }
+                blocks.push(b);
+            }
         }
-        start.push(spheres.len() as u32);
+        start.push(blocks.len() as u32);
         Cells {
             period: l,
             wall: Dielectric::new(eta, roughness),
@@ -168,24 +237,33 @@ impl Cells {
             ng,
             g,
             inv_g: 1.0 / g,
+            inv_l: 1.0 / l,
             start,
-            spheres,
+            blocks,
         }
     }
 
-    /// The point in the tile's frame and the tile cell it lies in.
+    /// The point in the tile's frame and the grid cell it lies in.
+    #[inline(always)]
+    fn locate_cell(&self, p: Vec3) -> (Vec3, [usize; 3]) {
+        let l = self.period;
+        let f = |x: f32| floor_i(x * self.inv_l) as f32 * l;
+        let q = p - Vec3::new(f(p.x), f(p.y), f(p.z));
+        let i = |x: f32| ((x * self.inv_g) as i32).clamp(0, self.ng - 1) as usize;
+        (q, [i(q.x), i(q.y), i(q.z)])
+    }
+
+    /// The point in the tile's frame and the index of its grid cell.
     #[inline(always)]
     fn locate(&self, p: Vec3) -> (Vec3, usize) {
-        let l = self.period;
-        let q = p - (p / l).floor() * l;
-        let i = |x: f32| ((x * self.inv_g) as i32).clamp(0, self.ng - 1) as usize;
+        let (q, [x, y, z]) = self.locate_cell(p);
         let n = self.ng as usize;
-        (q, (i(q.z) * n + i(q.y)) * n + i(q.x))
+        (q, (z * n + y) * n + x)
     }
 
     #[inline(always)]
-    fn list(&self, cell: usize) -> &[[f32; 4]] {
-        &self.spheres[self.start[cell] as usize..self.start[cell + 1] as usize]
+    fn list(&self, cell: usize) -> &[Block] {
+        &self.blocks[self.start[cell] as usize..self.start[cell + 1] as usize]
     }
 
     /// Whether `p` lies in the air of a cell.
@@ -193,8 +271,14 @@ impl Cells {
     pub fn inside(&self, p: Vec3) -> bool {
         let (q, cell) = self.locate(p);
         self.list(cell).iter().any(|s| {
-            let o = q - Vec3::new(s[0], s[1], s[2]);
-            o.length_squared() < s[3]
+            let (ox, oy, oz) = (
+                lanes(|j| q.x - s.x[j]),
+                lanes(|j| q.y - s.y[j]),
+                lanes(|j| q.z - s.z[j]),
+            );
+            let i: [bool; LANES] =
+                std::array::from_fn(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] < s.r2[j]);
+            i.iter().fold(false, |a, &b| a | b)
         })
     }
 
@@ -203,12 +287,14 @@ impl Cells {
     /// already contain `p` (a point within rounding of a wall) are ignored.
     pub fn first_entry(&self, p: Vec3, d: Vec3, t_max: f32) -> Option<WallHit> {
         let l = self.period;
-        let q0 = p - (p / l).floor() * l;
+        let (q0, _) = self.locate(p);
         let ng = self.ng;
         let g = self.g;
-        // grid walk (Amanatides-Woo) in unbounded cell coordinates of the tile frame
+        // grid walk (Amanatides-Woo) in unbounded cell coordinates of the
+        // tile frame, kept as the cell in the tile (wi) and the tile (k)
         let cell0 = |x: f32| ((x * self.inv_g) as i32).clamp(0, ng - 1);
-        let mut ci = [cell0(q0.x), cell0(q0.y), cell0(q0.z)];
+        let mut wi = [cell0(q0.x), cell0(q0.y), cell0(q0.z)];
+        let mut k = [0i32; 3];
         let dv = [d.x, d.y, d.z];
         let qv = [q0.x, q0.y, q0.z];
         let mut step = [0i32; 3];
@@ -217,48 +303,47 @@ impl Cells {
         for a in 0..3 {
             if dv[a] > 0.0 {
                 step[a] = 1;
-                t_next[a] = ((ci[a] + 1) as f32 * g - qv[a]) / dv[a];
+                t_next[a] = ((wi[a] + 1) as f32 * g - qv[a]) / dv[a];
                 t_delta[a] = g / dv[a];
             } else if dv[a] < 0.0 {
                 step[a] = -1;
-                t_next[a] = (ci[a] as f32 * g - qv[a]) / dv[a];
+                t_next[a] = (wi[a] as f32 * g - qv[a]) / dv[a];
                 t_delta[a] = -g / dv[a];
             }
         }
-        let mut best = t_max;
-        let mut hit: Option<Vec3> = None;
+        // per lane: nearest entry so far and the centre of its sphere
+        let mut best = [t_max; LANES];
+        let mut cx = [0.0f32; LANES];
+        let mut cy = [0.0f32; LANES];
+        let mut cz = [0.0f32; LANES];
+        let mut nearest = t_max;
         let n = ng as usize;
         loop {
-            let w = |i: i32| i.rem_euclid(ng) as usize;
-            let cell = (w(ci[2]) * n + w(ci[1])) * n + w(ci[0]);
-            let shift = Vec3::new(
-                ci[0].div_euclid(ng) as f32,
-                ci[1].div_euclid(ng) as f32,
-                ci[2].div_euclid(ng) as f32,
-            ) * l;
+            let cell = (wi[2] as usize * n + wi[1] as usize) * n + wi[0] as usize;
+            let shift = Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32) * l;
             let o = q0 - shift;
             for s in self.list(cell) {
-                let c = Vec3::new(s[0], s[1], s[2]);
-                let oc = o - c;
-                let b = oc.dot(d);
-                if b >= 0.0 {
-                    continue; // moving away from the centre
-                }
-                let cc = oc.length_squared() - s[3];
-                if cc <= 0.0 {
-                    continue;
-                }
+                let ox = lanes(|j| o.x - s.x[j]);
+                let oy = lanes(|j| o.y - s.y[j]);
+                let oz = lanes(|j| o.z - s.z[j]);
+                let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
+                let cc = lanes(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] - s.r2[j]);
                 // r^2 - |perpendicular|^2: no cancellation near tangency
-                let disc = s[3] - (oc - d * b).length_squared();
-                if disc <= 0.0 {
-                    continue;
-                }
-                let t = -b - disc.sqrt();
-                if t < best {
-                    best = t;
-                    hit = Some(c + shift);
-                }
+                let disc = lanes(|j| {
+                    let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
+                    s.r2[j] - (px * px + py * py + pz * pz)
+                });
+                let t = lanes(|j| -b[j] - disc[j].max(0.0).sqrt());
+                // moving towards the centre, from outside, not missing
+                let ok: [bool; LANES] = std::array::from_fn(|j| {
+                    (b[j] < 0.0) & (cc[j] > 0.0) & (disc[j] > 0.0) & (t[j] < best[j])
+                });
+                best = select(ok, t, best);
+                cx = select(ok, lanes(|j| s.x[j] + shift.x), cx);
+                cy = select(ok, lanes(|j| s.y[j] + shift.y), cy);
+                cz = select(ok, lanes(|j| s.z[j] + shift.z), cz);
             }
+            nearest = best.iter().fold(nearest, |m, &t| m.min(t));
             let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
                 0
             } else if t_next[1] <= t_next[2] {
@@ -267,18 +352,27 @@ impl Cells {
                 2
             };
             let t_exit = t_next[a];
-            if best <= t_exit || t_exit >= t_max {
+            if nearest <= t_exit || t_exit >= t_max {
                 break;
             }
-            ci[a] += step[a];
+            wi[a] += step[a];
+            if wi[a] == ng {
+                wi[a] = 0;
+                k[a] += 1;
+            } else if wi[a] < 0 {
+                wi[a] = ng - 1;
+                k[a] -= 1;
+            }
             t_next[a] += t_delta[a];
         }
-        hit.map(|c| {
-            let x = q0 + d * best;
-            WallHit {
-                t: best,
-                normal: (c - x).normalize(),
-            }
+        if nearest >= t_max {
+            return None;
+        }
+        let j = (0..LANES).find(|&j| best[j] == nearest)?;
+        let x = q0 + d * nearest;
+        Some(WallHit {
+            t: nearest,
+            normal: (Vec3::new(cx[j], cy[j], cz[j]) - x).normalize(),
         })
     }
 
@@ -289,46 +383,108 @@ impl Cells {
     /// cell (a point within rounding of a wall).
     pub fn cross(&self, p: Vec3, d: Vec3) -> Option<WallHit> {
         let mut t = 0.0f32;
-        let mut last: Option<Vec3> = None;
-        let l = self.period;
-        for _ in 0..256 {
+        let mut last = Vec3::ZERO;
+        let inv_d = Vec3::ONE / d;
+        let mut jumps = 0;
+        // the line's entry and exit of each sphere in the grid cell, kept to
+        // follow the chain of overlapping cells inside the grid cell
+        let mut t_in = [[0.0f32; LANES]; MAX_SWEEP];
+        let mut t_out = [[0.0f32; LANES]; MAX_SWEEP];
+        while jumps < 256 {
             let x = p + d * t;
-            let (q, cell) = self.locate(x);
+            let (q, ci) = self.locate_cell(x);
+            let n = self.ng as usize;
+            let list = self.list((ci[2] * n + ci[1]) * n + ci[0]);
             let base = x - q; // tile origin of x
-            let mut far = -1.0f32;
-            let mut centre = Vec3::ZERO;
-            for s in self.list(cell) {
-                let c = Vec3::new(s[0], s[1], s[2]);
-                let oc = q - c;
-                let cc = oc.length_squared() - s[3];
-                if cc >= 0.0 {
-                    continue;
-                }
-                let b = oc.dot(d);
-                let te = -b + (s[3] - (oc - d * b).length_squared()).max(0.0).sqrt();
-                if te > far {
-                    far = te;
-                    centre = c + base;
+            let sweep = list.len() <= MAX_SWEEP;
+            // per lane: the furthest exit of a sphere containing x
+            let mut far = [-1.0f32; LANES];
+            let mut cx = [0.0f32; LANES];
+            let mut cy = [0.0f32; LANES];
+            let mut cz = [0.0f32; LANES];
+            for (k, s) in list.iter().enumerate() {
+                let ox = lanes(|j| q.x - s.x[j]);
+                let oy = lanes(|j| q.y - s.y[j]);
+                let oz = lanes(|j| q.z - s.z[j]);
+                let cc = lanes(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] - s.r2[j]);
+                let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
+                let h = lanes(|j| {
+                    let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
+                    s.r2[j] - (px * px + py * py + pz * pz)
+                });
+                let sq = lanes(|j| h[j].max(0.0).sqrt());
+                let te = lanes(|j| -b[j] + sq[j]);
+                let ok: [bool; LANES] = std::array::from_fn(|j| (cc[j] < 0.0) & (te[j] > far[j]));
+                far = select(ok, te, far);
+                cx = select(ok, s.x, cx);
+                cy = select(ok, s.y, cy);
+                cz = select(ok, s.z, cz);
+                if sweep {
+                    let hit: [bool; LANES] = std::array::from_fn(|j| h[j] > 0.0);
+                    t_in[k] = select(hit, lanes(|j| -b[j] - sq[j]), [f32::INFINITY; LANES]);
+                    t_out[k] = te;
                 }
             }
-            if far < 0.0 {
-                let _ = l;
-                return last.map(|c| {
-                    let y = p + d * t;
-                    WallHit {
-                        t,
-                        normal: (c - y).normalize(),
-                    }
+            let j = argmax(far);
+            if far[j] < 0.0 {
+                // (None: x is in no cell)
+                return (jumps > 0).then(|| WallHit {
+                    t,
+                    normal: (last - (p + d * t)).normalize(),
                 });
             }
             // to the far side of the cell reaching furthest, a hair beyond
-            t += far + 2e-5;
-            last = Some(centre);
+            let mut s = far[j] + 2e-5;
+            last = Vec3::new(cx[j], cy[j], cz[j]) + base;
+            jumps += 1;
+            if sweep {
+                // on while the point stays in this grid cell, whose list
+                // holds every sphere that can contain it
+                let g = self.g;
+                let box_exit = |a: usize, q: f32, d: f32, inv: f32| {
+                    let wall = if d > 0.0 {
+                        (ci[a] + 1) as f32 * g
+                    } else {
+                        ci[a] as f32 * g
+                    };
+                    if d == 0.0 {
+                        f32::INFINITY
+                    } else {
+                        (wall - q) * inv
+                    }
+                };
+                let t_box = box_exit(0, q.x, d.x, inv_d.x)
+                    .min(box_exit(1, q.y, d.y, inv_d.y))
+                    .min(box_exit(2, q.z, d.z, inv_d.z))
+                    - 1e-4;
+                while s < t_box && jumps < 256 {
+                    let mut far = [-1.0f32; LANES];
+                    let mut which = [0usize; LANES];
+                    for k in 0..list.len() {
+                        let ok: [bool; LANES] = std::array::from_fn(|j| {
+                            (t_in[k][j] < s) & (t_out[k][j] > s) & (t_out[k][j] > far[j])
+                        });
+                        far = select(ok, t_out[k], far);
+                        which = select(ok, [k; LANES], which);
+                    }
+                    let j = argmax(far);
+                    if far[j] < 0.0 {
+                        // out of the union by the intervals: the outer
+                        // loop's point test (that of `inside`) decides
+                        break;
+                    }
+                    s = far[j] + 2e-5;
+                    let b = &list[which[j]];
+                    last = Vec3::new(b.x[j], b.y[j], b.z[j]) + base;
+                    jumps += 1;
+                }
+            }
+            t += s;
         }
         // 256 overlapping cells along one line: give the last wall met
-        last.map(|c| WallHit {
+        Some(WallHit {
             t,
-            normal: (c - (p + d * t)).normalize(),
+            normal: (last - (p + d * t)).normalize(),
         })
     }
 }
@@ -370,7 +526,7 @@ mod tests {
             assert_eq!(c.inside(p), c.inside(p + Vec3::new(8.0, -16.0, 24.0)));
         }
         // same seed, same tile
-        assert_eq!(c.spheres, cells().spheres);
+        assert_eq!(c.blocks, cells().blocks);
     }
 
     /// first_entry and cross against a brute-force march along the line.
