@@ -275,6 +275,47 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
     assert_same_files(&reset_dir, &want, "capture with resets");
 }
 
+/// A host that dies leaves the MCU running with its arc wherever it stopped
+/// (a separate process on a real rig, as in tests/scripts/rehearsal.sh); the
+/// next host must not home the arc from below its home cam, where homing
+/// runs into the end switch.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_host_homes_an_arc_left_below_home_without_hitting_its_end_switch() {
+    use protocol::Axis;
+    let tmp = tempfile::tempdir().unwrap();
+    let plan = plan();
+    let mut rig = start_rig().await;
+    rig.link.home(Axis::LightArc).await.unwrap();
+    rig.link.wait_motion_done(Axis::LightArc).await.unwrap();
+    rig.link
+        .move_rad(Axis::LightArc, -0.6, false, 0.0, 0.0)
+        .await
+        .unwrap();
+    rig.link.wait_motion_done(Axis::LightArc).await.unwrap();
+    let mut dir = CaptureDir::create(&tmp.path().join("cap"), manifest(&plan)).unwrap();
+    let opts = RunOptions {
+        stop_after_steps: Some(1),
+        ..options(&rig)
+    };
+    let mut op = rig.handle.operator();
+    let report = run_capture(
+        &rig.link,
+        &mut rig.cameras,
+        &mut op,
+        &mut dir,
+        &opts,
+        &mut Countdown {
+            left: usize::MAX,
+            hit: None,
+        },
+    )
+    .await
+    .expect("the first step on a rig whose arc stopped below home");
+    assert_eq!(report.steps_run, 1);
+    let status = rig.link.status().await.unwrap();
+    assert_eq!(status.fault, None);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn foreign_or_damaged_directories_are_refused_untouched() {
     let tmp = tempfile::tempdir().unwrap();

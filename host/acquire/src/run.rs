@@ -190,20 +190,11 @@ pub async fn run_capture(
                     if status.fault == Some(protocol::FaultCause::HeartbeatLost) {
                         link.clear_fault().await?;
                     }
-                    // The arc homes towards negative angles and only finds its
-                    // home cam from the positive side (otherwise it runs into
-                    // its end switch): bring it back over home first, by a
-                    // relative move from where it was last sent.
-                    // A reset mid-move leaves it between the move's ends, so
-                    // clear the lower end without pushing the upper one past
-                    // the arc's soft range (that is its end switch).
+                    // A reset mid-move leaves the arc anywhere between the
+                    // move's ends, as last sent.
                     let lo = rig.light_arc.min(rig.light_arc_from);
                     let hi = rig.light_arc.max(rig.light_arc_from);
-                    if lo < 0.0 {
-                        let shift = (-lo + 0.2).min(LIGHT_ARC.soft_max - hi);
-                        link.move_rad(Axis::LightArc, shift, true, 0.0, 0.0).await?;
-                        link.wait_motion_done(Axis::LightArc).await?;
-                    }
+                    bring_arc_over_home(link, lo, hi).await?;
                     if resets > opts.max_resets_per_step {
                         return Err(RunError::TooManyResets {
                             step: step.index,
@@ -258,6 +249,20 @@ pub async fn safe_off(link: &Link) {
     let _ = link.lamps(0).await;
 }
 
+/// The arc homes towards negative angles and only finds its home cam from
+/// the positive side (otherwise it runs into its end switch): with the
+/// carriage somewhere in `lo..=hi` (rad), a relative move clears the lower
+/// end without pushing the upper one past the arc's soft range (that is its
+/// end switch).
+async fn bring_arc_over_home(link: &Link, lo: f64, hi: f64) -> Result<(), LinkError> {
+    if lo < 0.0 {
+        let shift = (-lo + 0.2).min(LIGHT_ARC.soft_max - hi);
+        link.move_rad(Axis::LightArc, shift, true, 0.0, 0.0).await?;
+        link.wait_motion_done(Axis::LightArc).await?;
+    }
+    Ok(())
+}
+
 async fn home_both(link: &Link) -> Result<(), LinkError> {
     link.home(Axis::Turntable).await?;
     link.home(Axis::LightArc).await?;
@@ -300,6 +305,14 @@ async fn run_step(
         rig.lamps = 0;
         link.laser_arm(false).await?;
         link.lamps(0).await?;
+        // An MCU that kept running while the host did not (a capture
+        // resumed after the host died) knows where its arc stopped.
+        let status = link.status().await?;
+        if status.axes[Axis::LightArc.index()].homed
+            && let Some(at) = link.position_rad(&status, Axis::LightArc)
+        {
+            bring_arc_over_home(link, at, at).await?;
+        }
         home_both(link).await?;
         rig.homed = true;
         rig.turntable = 0.0;
