@@ -82,6 +82,9 @@ fn argmax(v: [f32; LANES]) -> usize {
 /// keeps (longer lists take one grid lookup per overlapping cell).
 const MAX_SWEEP: usize = 16;
 
+/// Memory the grid's lists may take (see `Cells::build`).
+const LIST_BYTES: f64 = 2.0e6;
+
 /// floor(x) for |x| < 2^31 without a libm call (no SSE4.1 round by default).
 #[inline(always)]
 fn floor_i(x: f32) -> i32 {
@@ -162,14 +165,33 @@ impl Cells {
             centres.push([c[0], c[1], c[2], r]);
         }
         let measured = filled as f64 / (m * m * m) as f64;
-        // grid: cells about the mean radius wide (as fast as half of it, with
-        // a quarter of the memory), at most 128 per side
+        // grid: cells about the mean radius wide, at most 128 per side, and
+        // coarser where the lists would outgrow LIST_BYTES: the lookups of a
+        // walk land all over the tile, and a cache miss costs more than the
+        // tests of a longer list
         let mean_radius = 0.5 * (r0 + r1);
-        let gf: f32 = std::env::var("QHM_GF")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(1.0);
-        let ng = ((l / (gf * mean_radius)).floor() as i32).clamp(1, 128);
+        let list_bytes = |ng: i32| {
+            let g = (l / ng as f32) as f64;
+            let per_sphere: f64 = centres
+                .iter()
+                .map(|s| {
+                    let r = s[3] as f64;
+                    // grid cells within r of a random centre (Steiner formula)
+                    let pi = std::f64::consts::PI;
+                    (g.powi(3)
+                        + 6.0 * g * g * r
+                        + 3.0 * pi * g * r * r
+                        + 4.0 / 3.0 * pi * r.powi(3))
+                        / g.powi(3)
+                })
+                .sum();
+            let cells = (ng as f64).powi(3);
+            16.0 * (per_sphere + cells * (LANES - 1) as f64 / 2.0) + 4.0 * cells
+        };
+        let mut ng = ((l / mean_radius).floor() as i32).clamp(1, 128);
+        while ng > 1 && list_bytes(ng) > LIST_BYTES {
+            ng -= 1;
+        }
         let g = l / ng as f32;
         let n3 = (ng * ng * ng) as usize;
         let mut lists: Vec<Vec<[f32; 4]>> = vec![Vec::new(); n3];

@@ -20,6 +20,7 @@ use crate::cells::Cells;
 use crate::medium::Volume;
 use crate::microfacet::{BsdfSample, Dielectric, TransportMode};
 use crate::rng::{WalkRng, exp1_from_bits};
+use crate::surface::HeightField;
 use crate::walk::{
     Local, MAX_EVENTS, MAX_INTERFACES, Pass, SurfaceKind, Tally, geometric_events,
     sample_uniform_sphere_bits,
@@ -77,7 +78,7 @@ impl Pass<'_> {
         let [hx, hy, depth] = vol.half;
         let outside = |x: Vec3| x.x.abs() > hx || x.y.abs() > hy || x.z < -depth;
         for _ in 0..256 {
-            let under_top = hf.inside_footprint(p.x, p.y) && p.z <= hf.height(p.x, p.y);
+            let under_top = hf.inside_footprint(p.x, p.y) && below_top(hf, p);
             if !under_top {
                 let Some((_, c)) = hf.hit_from_air(p, d) else {
                     return AirEnd::Sky;
@@ -105,7 +106,7 @@ impl Pass<'_> {
             if outside(x) {
                 return AirEnd::Lost;
             }
-            if !hf.inside_footprint(x.x, x.y) || x.z > hf.height(x.x, x.y) {
+            if !hf.inside_footprint(x.x, x.y) || !below_top(hf, x) {
                 // the cell opens above the top: on through the air
                 p = x;
                 continue;
@@ -327,6 +328,19 @@ impl Pass<'_> {
                 None
             }
         }
+    }
+}
+
+/// `x.z <= h(x.y, x.y)`, skipping the height field's lookup well below its
+/// lowest or above its highest point (the margin covers interpolation's rounding).
+#[inline(always)]
+fn below_top(hf: &HeightField, x: Vec3) -> bool {
+    if x.z < hf.h_min - 1e-4 {
+        true
+    } else if x.z > hf.h_max + 1e-4 {
+        false
+    } else {
+        x.z <= hf.height(x.x, x.y)
     }
 }
 

@@ -11,6 +11,8 @@
 use glam::Vec3;
 use std::f32::consts::PI;
 
+use crate::walk::unit_circle_from_bits;
+
 /// Whether a BSDF value is for radiance or for flux-carrying particles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TransportMode {
@@ -130,8 +132,8 @@ impl TrowbridgeReitz {
         let t2 = wh.cross(t1);
         // uniform disk (polar), warped to the projected hemisphere
         let r = u[0].sqrt();
-        let phi = 2.0 * PI * u[1];
-        let (s, c) = phi.sin_cos();
+        // (cos, sin) of 2 pi u[1] from a table, no libm call (< 2e-7 off)
+        let (c, s) = unit_circle_from_bits((u[1] * 4_294_967_296.0) as u32);
         let (px, mut py) = (r * c, r * s);
         let h = (1.0 - px * px).max(0.0).sqrt();
         let tt = (1.0 + wh.z) / 2.0;
