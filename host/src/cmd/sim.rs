@@ -442,7 +442,7 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
         for r in &report.rows {
             writeln!(
                 out,
-                "{:28} {} thread(s): {:9.0} paths/s, {:6.2} M events/s/core, {:6.1} events/path{}",
+                "{:28} {} thread(s): {:9.0} paths/s, {:6.2} M events/s/core, {:6.1} events/path{}{}",
                 r.medium,
                 r.threads,
                 r.paths_per_s,
@@ -450,7 +450,15 @@ fn bench(b: BenchArgs) -> Result<ExitCode> {
                 r.mean_events_per_path,
                 r.events_per_cpu_s
                     .map(|e| format!(", {:6.1} M events per CPU s", e / 1e6))
-                    .unwrap_or_default()
+                    .unwrap_or_default(),
+                match r.wall_events_per_cpu_s {
+                    Some(w) if r.wall_events_per_path > 0.0 => format!(
+                        "; cell walls {:.1} per path, {:.1} M per CPU s",
+                        r.wall_events_per_path,
+                        w / 1e6
+                    ),
+                    _ => String::new(),
+                }
             )?;
         }
         for n in &report.stripe_noise {

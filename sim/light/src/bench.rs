@@ -31,6 +31,10 @@ pub struct BenchRow {
     pub events_per_cpu_s: Option<f64>,
     pub null_events_per_s: f64,
     pub mean_events_per_path: f64,
+    /// Cellular media: reflections and refractions at cell walls per path
+    /// (not counted in the events above), and per CPU second.
+    pub wall_events_per_path: f64,
+    pub wall_events_per_cpu_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -275,6 +279,8 @@ pub fn run_with(
                 events_per_cpu_s: cpu.map(|c| t.events as f64 / c),
                 null_events_per_s: t.null_events as f64 / s,
                 mean_events_per_path: t.events as f64 / photons as f64,
+                wall_events_per_path: t.wall_events as f64 / photons as f64,
+                wall_events_per_cpu_s: cpu.map(|c| t.wall_events as f64 / c),
             });
         }
     }
