@@ -170,8 +170,8 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "sponge-foam",
         Coefficients {
-            sigma_s: [25.5, 24.5, 14.3],
-            sigma_a: [0.025, 0.046, 3.4],
+            sigma_s: [24.0, 19.0, 7.0],
+            sigma_a: [0.0235, 0.0357, 2.6],
         },
         1.5,
     ),
@@ -186,8 +186,8 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "rice-cake-wall",
         Coefficients {
-            sigma_s: [2.78, 2.6, 1.84],
-            sigma_a: [0.006, 0.098, 0.64],
+            sigma_s: [2.78, 2.6, 2.85],
+            sigma_a: [0.006, 0.098, 0.74],
         },
         1.5,
     ),
@@ -450,9 +450,9 @@ pub enum SceneDesc {
 /// Cells of the bread preset: (porosity, cell radius range mm, wall index).
 pub const BREAD_CELLS: (f64, [f64; 2], f64) = (0.75, [0.1, 1.0], 1.45);
 /// Cells of the sponge preset.
-pub const SPONGE_CELLS: (f64, [f64; 2], f64) = (0.9, [0.15, 0.6], 1.5);
+pub const SPONGE_CELLS: (f64, [f64; 2], f64) = (0.9, [0.1, 0.4], 1.5);
 /// Cells of the rice-cake preset.
-pub const RICE_CAKE_CELLS: (f64, [f64; 2], f64) = (0.85, [0.05, 0.5], 1.5);
+pub const RICE_CAKE_CELLS: (f64, [f64; 2], f64) = (0.85, [0.06, 0.6], 1.5);
 
 /// Names `SceneDesc::preset` accepts.
 pub const SCENE_PRESETS: &[&str] = &[
