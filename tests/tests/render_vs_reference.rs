@@ -216,19 +216,26 @@ fn check(case: &str, channels: &[usize], mean: f64, term: f64, blocks: f64) {
 
 #[test]
 fn apple_sphere_front_lit_matches_the_path_tracer() {
-    check("apple-front", &[0, 1, 2], 0.045, 0.12, 0.03);
+    check("apple-front", &[0, 1, 2], 0.055, 0.12, 0.045);
 }
 
 #[test]
 fn apple_sphere_back_lit_matches_the_path_tracer() {
     // Blue is left out: apple absorbs it (s_a 0.046 / mm), and the light
     // through 40 mm is within the reference's noise.
-    check("apple-back", &[0, 1], 0.2, 0.3, 0.15);
+    check("apple-back", &[0, 1], 0.1, 0.14, 0.16);
+}
+
+#[test]
+fn skin1_sphere_back_lit_matches_the_path_tracer() {
+    // Blocks are not compared: few of the reference's paths get through
+    // 40 mm of skin, and its 8 x 8 blocks are mostly its own noise.
+    check("skin1-back", &[0, 1, 2], 0.32, 0.32, f64::INFINITY);
 }
 
 #[test]
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
-    check("skin1-side", &[0, 1, 2], 0.15, 0.3, 0.17);
+    check("skin1-side", &[0, 1, 2], 0.1, 0.17, 0.12);
 }
 
 /// Every cached case at `qhm render`'s default quality (30,000 surface
@@ -237,12 +244,13 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 #[test]
 #[ignore]
 fn every_cached_case_at_default_quality() {
-    let cases: [(&str, &[usize], f64, f64, f64); 5] = [
-        ("skin1-front", &[0, 1, 2], 0.16, 0.08, 0.18),
-        ("skin1-side", &[0, 1, 2], 0.14, 0.3, 0.16),
+    let cases: [(&str, &[usize], f64, f64, f64); 6] = [
+        ("skin1-front", &[0, 1, 2], 0.13, 0.07, 0.16),
+        ("skin1-side", &[0, 1, 2], 0.12, 0.18, 0.11),
+        ("skin1-back", &[0, 1, 2], 0.28, 0.3, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.2, 1.0, 0.22),
-        ("apple-front", &[0, 1, 2], 0.04, 0.14, 0.02),
-        ("apple-back", &[0, 1], 0.2, 0.3, 0.14),
+        ("apple-front", &[0, 1, 2], 0.05, 0.14, 0.04),
+        ("apple-back", &[0, 1], 0.09, 0.13, 0.16),
     ];
     for (case, channels, mean, term, blocks) in cases {
         let mut c = load(case);

@@ -40,9 +40,6 @@ pub struct RdTable {
     /// The classic dipole's constants for the geometry factor
     /// ([`RdTable::with_geometry`]); None = planar R_d(r) only.
     geometry: Option<DipoleLanes>,
-    /// Φ_plane(r) per channel (lane 3 unused) on the grid of `values` (with
-    /// the geometry).
-    planar: Vec<Vec4>,
 }
 
 impl RdTable {
@@ -118,7 +115,6 @@ impl RdTable {
             near_radius: 0.0,
             near_integral: Vec3::ZERO,
             geometry: None,
-            planar: Vec::new(),
         }
     }
 
@@ -144,66 +140,233 @@ impl RdTable {
     pub fn with_geometry(mut self, params: &DipoleParams) -> RdTable {
         let g: [qhm_model::dipole::Dipole; 3] = std::array::from_fn(|c| params.channel(c));
         let dr = 1.0 / self.inv_dr as f64;
-        self.planar = (0..self.values.len())
-            .map(|k| {
-                let r2 = (k as f64 * dr).powi(2);
-                let v: [f32; 3] = std::array::from_fn(|c| {
-                    let d = &g[c];
-                    let phi = |z: f64| {
-                        let dd = (r2 + z * z).sqrt();
-                        z * (d.sigma_tr * dd + 1.0) * (-d.sigma_tr * dd).exp() / (dd * dd * dd)
-                    };
-                    (phi(d.z_r) + phi(d.z_v)) as f32
-                });
-                Vec3::from(v).extend(0.0)
-            })
-            .collect();
-        let lanes = |f: fn(&qhm_model::dipole::Dipole) -> f64| {
+        let lanes = |f: &dyn Fn(&qhm_model::dipole::Dipole) -> f64| {
             Vec4::new(f(&g[0]) as f32, f(&g[1]) as f32, f(&g[2]) as f32, 0.0)
         };
+        let sources = |depths: &'static [(f32, f32)]| Sources {
+            depths,
+            planar: (0..self.values.len())
+                .map(|k| {
+                    let r2 = (k as f64 * dr).powi(2);
+                    lanes(&|d| {
+                        let phi = |z: f64| {
+                            let dd = (r2 + z * z).sqrt();
+                            z * (d.sigma_tr * dd + 1.0) * (-d.sigma_tr * dd).exp() / (dd * dd * dd)
+                        };
+                        depths
+                            .iter()
+                            .map(|&(t, w)| {
+                                let z = t as f64 * d.z_r;
+                                w as f64 * (phi(z) + phi(z + d.z_v - d.z_r))
+                            })
+                            .sum::<f64>()
+                    })
+                })
+                .collect(),
+        };
+        let z_r = lanes(&|d| d.z_r);
         self.geometry = Some(DipoleLanes {
-            z_r: lanes(|d| d.z_r),
-            z_v: lanes(|d| d.z_v),
-            sigma_tr: lanes(|d| d.sigma_tr),
+            z_r,
+            z_v: lanes(&|d| d.z_v),
+            sigma_tr: lanes(&|d| d.sigma_tr),
+            beam_reach: BEAM_REACH * z_r.max_element(),
+            beam: sources(&BEAM),
+            point: sources(&[(1.0, 1.0)]),
+            oblique_norm: vec![Vec4::ONE; OBLIQUE_STEPS],
+            near_oblique: Vec::new(),
         });
+        // Normalise the kernel as it is summed (this table, these sources)
+        // to normal incidence's total, then weigh the near field.
+        let whole = self.plane_totals(self.r_max, |_| 1.0);
+        let at_normal = whole[OBLIQUE_STEPS - 1];
+        let norm = whole
+            .iter()
+            .map(|&t| {
+                let q = at_normal / t;
+                Vec3::select(t.cmpgt(Vec3::splat(1e-6) * at_normal), q, Vec3::ONE).extend(1.0)
+            })
+            .collect();
+        let near_oblique = if self.near_radius > 0.0 && self.near_integral.min_element() > 0.0 {
+            Some(self.near_radius)
+        } else {
+            None
+        };
+        if let Some(g) = &mut self.geometry {
+            g.oblique_norm = norm;
+        }
+        if let Some(rc) = near_oblique {
+            let near = self.plane_totals(rc, |r| self.near_weight(r));
+            let integral = self.near_integral;
+            if let Some(g) = &mut self.geometry {
+                g.near_oblique = near.iter().map(|&t| t / integral).collect();
+            }
+        }
         self
     }
 
-    /// G for a sample at offset `dx` = x_o - x_i with normal `ni`, seen
-    /// from a query with normal `no` (see [`RdTable::with_geometry`]). The
-    /// three channels go in the lanes of one vector: this is the inner loop
-    /// of a render with the geometry factor.
+    /// ∫ weight(r) R(r) G dA over a plane out to `radius`, lit along a beam
+    /// refracted to cos θ_t = k / (OBLIQUE_STEPS - 1), for each k: polar
+    /// midpoint rule with the radii packed towards the entry, where an
+    /// oblique beam's shallow sources put their flux.
+    fn plane_totals(&self, radius: f32, weight: impl Fn(f32) -> f32) -> Vec<Vec3> {
+        let (nr, nphi) = (256, 16);
+        let dphi = std::f32::consts::PI / nphi as f32;
+        let rings: Vec<(f32, Vec3)> = (0..nr)
+            .map(|i| {
+                let x = (i as f32 + 0.5) / nr as f32;
+                let (r, dr) = (radius * x * x, radius * 2.0 * x / nr as f32);
+                // Symmetric about the plane of incidence: half the azimuths, twice.
+                (r, self.eval(r) * weight(r) * (r * dr * dphi * 2.0))
+            })
+            .collect();
+        (0..OBLIQUE_STEPS)
+            .into_par_iter()
+            .map(|k| {
+                let cos_t = k as f32 / (OBLIQUE_STEPS - 1) as f32;
+                let wi = Vec3::new((1.0 - cos_t * cos_t).max(0.0).sqrt(), 0.0, -cos_t);
+                let mut sum = Vec3::ZERO;
+                for &(r, kw) in &rings {
+                    for j in 0..nphi {
+                        let phi = (j as f32 + 0.5) * dphi;
+                        let dx = Vec3::new(r * phi.cos(), r * phi.sin(), 0.0);
+                        sum += kw * self.flux_factors(dx, r, Vec3::Z, wi, Vec3::Z, Vec3::ZERO).0;
+                    }
+                }
+                sum
+            })
+            .collect()
+    }
+
+    /// The near field's weight for a sample whose light enters at
+    /// cos θ_t = `cos_t` relative to normal incidence's
+    /// ([`DipoleLanes::near_oblique`]); 1 without the geometry.
     #[inline]
+    fn near_entry(&self, cos_t: f32) -> Vec3 {
+        match &self.geometry {
+            Some(g) if !g.near_oblique.is_empty() && cos_t < 0.9999 => {
+                let x = cos_t.clamp(0.0, 1.0) * (OBLIQUE_STEPS - 1) as f32;
+                let i = (x as usize).min(OBLIQUE_STEPS - 2);
+                let t = x - i as f32;
+                g.near_oblique[i] * (1.0 - t) + g.near_oblique[i + 1] * t
+            }
+            _ => Vec3::ONE,
+        }
+    }
+
+    /// G for a sample at offset `dx` = x_o - x_i with normal `ni`, lit at
+    /// normal incidence, seen from a query with normal `no` (see
+    /// [`RdTable::with_geometry`]).
+    #[cfg(test)]
     fn geometry_factor(&self, dx: Vec3, r: f32, ni: Vec3, no: Vec3) -> Vec3 {
+        self.flux_factors(dx, r, ni, -ni, no, Vec3::ZERO).0
+    }
+
+    /// The geometry factor G and the tangential flux factor G_u of a
+    /// sample at offset `dx` = x_o - x_i with normal `ni` whose light
+    /// enters along the unit direction `wi` (refracted, into the medium),
+    /// seen from a query with normal `no`. The three channels go in the
+    /// lanes of one vector: this is the inner loop of a render.
+    ///
+    /// The real source lies one reduced mean free path along the entering
+    /// light, s_r = x_i + z_r w_i, at depth z' = z_r cos θ_t; the image lies
+    /// z' + 2 z_b above the plane over it, s_v = s_r + (2 z' + z_v - z_r) n_i
+    /// (normal incidence gives the classic pair). Along the beam the pairs
+    /// sit at the depths of [`BEAM`] out to BEAM_REACH mean free paths from
+    /// x_i, one pair at t = 1 beyond (the planar tables follow the same
+    /// split, so G is 1 on a plane lit at normal incidence either way). An oblique beam so moves
+    /// the exitance forward; its total over a plane, 2π (e^{-s_tr z'} +
+    /// e^{-s_tr (z' + 2 z_b)}), is scaled back to normal incidence's, since
+    /// the entrance (f, or the smooth boundary's entry shape) already holds
+    /// how much more an oblique beam returns.
+    ///
+    /// G_u is the flux through x_o along the unit tangent `u` over the
+    /// planar normal flux, u · (f_r (x_o - s_r) - f_v (x_o - s_v)) / Φ_plane
+    /// with f = (s_tr d + 1) e^{-s_tr d} / d³ (see
+    /// [`DipoleTree::query_flux`]); `u` = 0 gives G_u = 0.
+    #[inline]
+    fn flux_factors(
+        &self,
+        dx: Vec3,
+        r: f32,
+        ni: Vec3,
+        wi: Vec3,
+        no: Vec3,
+        u: Vec3,
+    ) -> (Vec3, Vec3) {
         let Some(g) = &self.geometry else {
-            return Vec3::ONE;
+            return (Vec3::ONE, Vec3::ZERO);
         };
         let h = no.dot(dx);
         let c = no.dot(ni);
-        if h.abs() < 1e-4 * r.max(1e-3) && c > 0.9999 {
-            return Vec3::ONE;
+        let cos_t = -wi.dot(ni);
+        let tangential = u != Vec3::ZERO;
+        let normal_entry = cos_t > 0.9999;
+        if !tangential && normal_entry && h.abs() < 1e-4 * r.max(1e-3) && c > 0.9999 {
+            return (Vec3::ONE, Vec3::ZERO);
         }
-        let along = ni.dot(dx);
-        let r2 = r * r;
+        // The beam near its entry, one pair (at its mean depth) beyond.
+        let set = if r < g.beam_reach { &g.beam } else { &g.point };
         let planar = {
             let x = r * self.inv_dr;
-            let i = (x as usize).min(self.planar.len().saturating_sub(2));
+            let i = (x as usize).min(set.planar.len().saturating_sub(2));
             let t = (x - i as f32).min(1.0);
-            self.planar[i] * (1.0 - t) + self.planar[i + 1] * t
+            set.planar[i] * (1.0 - t) + set.planar[i + 1] * t
         };
-        // z (s_tr d + 1) e^{-s_tr d} / d³ with a signed z.
-        let phi = |z: Vec4, d2: Vec4| {
+        // (s_tr d + 1) e^{-s_tr d} / d³.
+        let f = |d2: Vec4| {
             let d2 = d2.max(Vec4::splat(1e-12));
-            let dd = Vec4::from_array(d2.to_array().map(f32::sqrt));
+            let dd = sqrt4(d2);
             let sd = g.sigma_tr * dd;
-            z * (sd + Vec4::ONE) * exp_neg(sd) / (d2 * dd)
+            (sd + Vec4::ONE) * exp_neg(sd) / (d2 * dd)
         };
-        // Real source s_r = x_i - z_r n_i, image s_v = x_i + z_v n_i.
-        let dr2 = g.z_r * (g.z_r + Vec4::splat(2.0 * along)) + Vec4::splat(r2);
-        let dv2 = g.z_v * (g.z_v - Vec4::splat(2.0 * along)) + Vec4::splat(r2);
-        let geo = phi(Vec4::splat(h) + g.z_r * c, dr2) - phi(Vec4::splat(h) - g.z_v * c, dv2);
-        let usable = planar.cmpgt(Vec4::ZERO) & geo.is_finite_mask();
-        Vec4::select(usable, geo.max(Vec4::ZERO) / planar, Vec4::ONE).truncate()
+        let s = Vec4::splat;
+        let (wdx, ndx, nw, udx, uw, un) = (
+            wi.dot(dx),
+            ni.dot(dx),
+            no.dot(wi),
+            u.dot(dx),
+            u.dot(wi),
+            u.dot(ni),
+        );
+        let (mut geo, mut flow) = (Vec4::ZERO, Vec4::ZERO);
+        for &(t, w) in set.depths {
+            // Source k: s_r = x_i + t z_r w_i; its image s_v = s_r + q n_i.
+            let zr = g.z_r * t;
+            let q = zr * (2.0 * cos_t) + g.z_v - g.z_r;
+            let dr2 = s(r * r) - zr * s(2.0 * wdx) + zr * zr;
+            let along_r = s(ndx) + zr * cos_t;
+            let dv2 = dr2 - q * along_r * 2.0 + q * q;
+            let (fr, fv) = (f(dr2), f(dv2));
+            let h_r = s(h) - zr * nw;
+            // A source beyond x_o's tangent plane lies outside the object
+            // there (a thin part the beam has crossed): it adds nothing.
+            let w = Vec4::select(h_r.cmpgt(Vec4::ZERO), s(w), Vec4::ZERO);
+            geo += (fr * h_r - fv * (h_r - q * c)) * w;
+            if tangential {
+                let u_r = s(udx) - zr * uw;
+                flow += (fr * u_r - fv * (u_r - q * un)) * w;
+            }
+        }
+        // Back to normal incidence's total over a plane.
+        let norm = if normal_entry {
+            Vec4::ONE
+        } else {
+            let x = cos_t.clamp(0.0, 1.0) * (OBLIQUE_STEPS - 1) as f32;
+            let i = (x as usize).min(OBLIQUE_STEPS - 2);
+            let t = x - i as f32;
+            g.oblique_norm[i] * (1.0 - t) + g.oblique_norm[i + 1] * t
+        };
+        let usable = planar.cmpgt(Vec4::ZERO) & geo.is_finite_mask() & norm.is_finite_mask();
+        let normal =
+            Vec4::select(usable, geo.max(Vec4::ZERO) * norm / planar, Vec4::ONE).truncate();
+        if !tangential {
+            return (normal, Vec3::ZERO);
+        }
+        let usable = usable & flow.is_finite_mask();
+        (
+            normal,
+            Vec4::select(usable, flow * norm / planar, Vec4::ZERO).truncate(),
+        )
     }
 
     /// Irradiance interpolation in the near field. The kernel is split as
@@ -269,6 +432,8 @@ struct Node {
     centroid: Vec3,
     /// Irradiance-weighted mean normal (unit; area-weighted without light).
     normal: Vec3,
+    /// Irradiance-weighted mean direction of the entering light (unit).
+    entry: Vec3,
     /// Summed area.
     area: f32,
     /// Area-weighted mean irradiance.
@@ -289,6 +454,7 @@ pub struct DipoleTree {
     ea: Vec<Vec3>,
     area: Vec<f32>,
     normal: Vec<Vec3>,
+    entry: Vec<Vec3>,
 }
 
 const LEAF_SIZE: usize = 8;
@@ -312,6 +478,9 @@ impl DipoleTree {
                 .collect(),
             area: samples.area.clone(),
             normal: samples.normal.clone(),
+            entry: (0..n)
+                .map(|i| entry_or_normal(samples.entry.get(i).copied(), samples.normal[i]))
+                .collect(),
         };
         let area = &samples.area;
         if n > 0 {
@@ -347,7 +516,7 @@ impl DipoleTree {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let (mut a_sum, mut ea_sum, mut c_w, mut c_sum, mut c_area) =
             (0.0f32, Vec3::ZERO, 0.0f32, Vec3::ZERO, Vec3::ZERO);
-        let (mut n_w, mut n_area) = (Vec3::ZERO, Vec3::ZERO);
+        let (mut n_w, mut n_area, mut entry) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
         for &i in &order[start..end] {
             let (p, a) = (self.pos[i as usize], area[i as usize]);
             lo = lo.min(p);
@@ -361,6 +530,7 @@ impl DipoleTree {
             let n = self.normal.get(i as usize).copied().unwrap_or(Vec3::Z);
             n_w += n * w;
             n_area += n * a;
+            entry += self.entry[i as usize] * w;
         }
         let normal = if c_w > 0.0 { n_w } else { n_area }
             .try_normalize()
@@ -371,11 +541,13 @@ impl DipoleTree {
         } else {
             c_area / a_sum.max(f32::MIN_POSITIVE)
         };
+        let entry = entry_or_normal(Some(entry), normal);
         let mut node = Node {
             lo,
             hi,
             centroid,
             normal,
+            entry,
             area: a_sum,
             e: ea_sum / a_sum.max(f32::MIN_POSITIVE),
             start: start as u32,
@@ -432,12 +604,32 @@ impl DipoleTree {
         r_min: f32,
         stats: &mut QueryStats,
     ) -> Vec3 {
+        self.query_flux(x, n, Vec3::ZERO, rd, epsilon, r_min, stats)
+            .0
+    }
+
+    /// The hierarchical sum of [`DipoleTree::query`] and beside it the
+    /// same sum of the tangential flux along the unit tangent `u` at x:
+    /// Σ R_d G_u E_i A_i ([`RdTable::flux_factors`]; 0 when `u` = 0 or
+    /// without the geometry). The near field holds no tangential part: it
+    /// is a few sample spacings of flat surface, where the flux is normal.
+    #[allow(clippy::too_many_arguments)]
+    pub fn query_flux(
+        &self,
+        x: Vec3,
+        n: Vec3,
+        u: Vec3,
+        rd: &RdTable,
+        epsilon: f32,
+        r_min: f32,
+        stats: &mut QueryStats,
+    ) -> (Vec3, Vec3) {
         if self.nodes.is_empty() {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, Vec3::ZERO);
         }
         let r_min2 = r_min * r_min;
         let r_max2 = rd.r_max * rd.r_max;
-        let mut sum = Vec3::ZERO;
+        let mut sum = (Vec3::ZERO, Vec3::ZERO);
         let mut nf = NearSums::default();
         let mut stack = Vec::with_capacity(64);
         stack.push(0u32);
@@ -455,8 +647,9 @@ impl DipoleTree {
             let far_from_disk = r_min == 0.0 || d_near2 > r_min2;
             if !inside && far_from_disk && node.area < epsilon * dc2 {
                 let r = dc2.sqrt();
-                let g = || rd.geometry_factor(x - node.centroid, r, node.normal, n);
-                nf.add(rd, r, g, node.e * node.area, node.area, &mut sum);
+                let g = || rd.flux_factors(x - node.centroid, r, node.normal, node.entry, n, u);
+                let cos_t = -node.entry.dot(node.normal);
+                nf.add(rd, r, g, cos_t, node.e * node.area, node.area, &mut sum);
                 stats.nodes_used += 1;
                 continue;
             }
@@ -466,8 +659,11 @@ impl DipoleTree {
                     if d2 >= r_min2 {
                         let i = i as usize;
                         let r = d2.sqrt();
-                        let g = || rd.geometry_factor(x - self.pos[i], r, self.normal[i], n);
-                        nf.add(rd, r, g, self.ea[i], self.area[i], &mut sum);
+                        let g = || {
+                            rd.flux_factors(x - self.pos[i], r, self.normal[i], self.entry[i], n, u)
+                        };
+                        let cos_t = -self.entry[i].dot(self.normal[i]);
+                        nf.add(rd, r, g, cos_t, self.ea[i], self.area[i], &mut sum);
                         stats.points_used += 1;
                     }
                 }
@@ -477,24 +673,41 @@ impl DipoleTree {
                 }
             }
         }
-        sum + nf.finish(rd)
+        (sum.0 + nf.finish(rd), sum.1)
     }
 
     /// The O(n) sum over every sample (the same estimator, near field
     /// included), for comparison.
     pub fn brute_force(&self, x: Vec3, n: Vec3, rd: &RdTable, r_min: f32) -> Vec3 {
         let r_min2 = r_min * r_min;
-        let mut sum = Vec3::ZERO;
+        let mut sum = (Vec3::ZERO, Vec3::ZERO);
         let mut nf = NearSums::default();
         for i in 0..self.pos.len() {
             let d2 = self.pos[i].distance_squared(x);
             if d2 >= r_min2 {
                 let r = d2.sqrt();
-                let g = || rd.geometry_factor(x - self.pos[i], r, self.normal[i], n);
-                nf.add(rd, r, g, self.ea[i], self.area[i], &mut sum);
+                let (ni, wi) = (self.normal[i], self.entry[i]);
+                let g = || rd.flux_factors(x - self.pos[i], r, ni, wi, n, Vec3::ZERO);
+                nf.add(rd, r, g, -wi.dot(ni), self.ea[i], self.area[i], &mut sum);
             }
         }
-        sum + nf.finish(rd)
+        sum.0 + nf.finish(rd)
+    }
+}
+
+/// √x per lane: one SSE instruction where there is SSE (glam's Vec4 is
+/// an __m128 there), four scalar roots elsewhere.
+#[inline]
+fn sqrt4(x: Vec4) -> Vec4 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
+    {
+        use std::arch::x86_64::{__m128, _mm_sqrt_ps};
+        // SAFETY: SSE2 is enabled for this target (the cfg above).
+        Vec4::from(unsafe { _mm_sqrt_ps(__m128::from(x)) })
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
+    {
+        Vec4::from_array(x.to_array().map(f32::sqrt))
     }
 }
 
@@ -519,12 +732,50 @@ fn exp_neg(x: Vec4) -> Vec4 {
 
 /// The classic dipole's z_r, z_v and sigma_tr per channel, in the lanes of
 /// a vector (lane 3 unused).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 struct DipoleLanes {
     z_r: Vec4,
     z_v: Vec4,
     sigma_tr: Vec4,
+    /// Sources along the entering beam: (depth in units of z_r, weight).
+    /// Beyond this distance (BEAM_REACH z_r of the deepest channel) one
+    /// pair stands for the beam.
+    beam_reach: f32,
+    beam: Sources,
+    point: Sources,
+    /// Σ R G dA over a plane lit at normal incidence over that at
+    /// cos θ_t = k / (OBLIQUE_STEPS - 1), per channel (lane 3 unused): the
+    /// kernel as summed keeps normal incidence's total.
+    oblique_norm: Vec<Vec4>,
+    /// ∫ w R G dA over a plane lit at cos θ_t = k / (OBLIQUE_STEPS - 1),
+    /// over ∫ w R dA (the near field's weight, which takes no G): an
+    /// oblique beam's exitance is closer to its entry, so more of it falls
+    /// in the near field. Empty without a near field.
+    near_oblique: Vec<Vec3>,
 }
+
+/// A set of real sources along the entering light with their images, and
+/// its tables.
+#[derive(Clone, Debug)]
+struct Sources {
+    /// (depth in units of z_r, weight).
+    depths: &'static [(f32, f32)],
+    /// Φ_plane(r) per channel (lane 3 unused) at normal incidence, on the
+    /// grid of [`RdTable::eval`].
+    planar: Vec<Vec4>,
+}
+
+/// Distance, in reduced mean free paths, out to which the beam's sources
+/// are summed one by one.
+const BEAM_REACH: f32 = 16.0;
+
+/// The sources along an entering beam: depth in units of z_r and weight,
+/// the 2-point Gauss-Laguerre rule for ∫ e^{-t} s(t) dt (the beam's
+/// exponential attenuation over one reduced mean free path).
+const BEAM: [(f32, f32); 2] = [(0.585786, 0.853553), (3.414214, 0.146447)];
+
+/// Steps of [`DipoleLanes::oblique_norm`] in cos θ_t.
+const OBLIQUE_STEPS: usize = 65;
 
 /// The near field's sums Σ w R E A and Σ w R A ([`RdTable::with_near_field`]).
 #[derive(Default)]
@@ -537,30 +788,37 @@ impl NearSums {
     /// One sample (or node) at distance `r` with E A = `ea` and area `a`:
     /// the far part goes into `sum`, the near part into the sums.
     #[inline]
-    /// `g` is the geometry factor, applied to the far part (the near
-    /// field is a few sample spacings across, where the surface is flat).
+    /// `g` gives the geometry and tangential factors, applied to the far
+    /// part (the near field is a few sample spacings across, where the
+    /// surface is flat); `sum` takes the normal and tangential sums.
+    #[allow(clippy::too_many_arguments)]
     fn add(
         &mut self,
         rd: &RdTable,
         r: f32,
-        g: impl FnOnce() -> Vec3,
+        g: impl FnOnce() -> (Vec3, Vec3),
+        cos_t: f32,
         ea: Vec3,
         a: f32,
-        sum: &mut Vec3,
+        sum: &mut (Vec3, Vec3),
     ) {
         let k = rd.eval(r);
         let w = rd.near_weight(r);
-        if w >= 1.0 {
-            self.ea += k * ea;
+        let far = if w >= 1.0 {
+            self.ea += k * ea * rd.near_entry(cos_t);
             self.a += k * a;
+            return;
         } else if w > 0.0 {
             let wk = k * w;
-            self.ea += wk * ea;
+            self.ea += wk * ea * rd.near_entry(cos_t);
             self.a += wk * a;
-            *sum += (k - wk) * g() * ea;
+            k - wk
         } else {
-            *sum += k * g() * ea;
-        }
+            k
+        };
+        let (g, g_u) = g();
+        sum.0 += far * g * ea;
+        sum.1 += far * g_u * ea;
     }
 
     /// ∫ w R dA times the weighted mean irradiance (per channel; the plain
@@ -575,12 +833,22 @@ impl NearSums {
     }
 }
 
+/// The unit entry direction from an (unnormalised) weighted sum, or
+/// straight in along the normal `n` when there is none or it points out.
+fn entry_or_normal(sum: Option<Vec3>, n: Vec3) -> Vec3 {
+    match sum.and_then(Vec3::try_normalize) {
+        Some(w) if w.dot(n) < -0.05 => w,
+        _ => -n,
+    }
+}
+
 fn empty_node() -> Node {
     Node {
         lo: Vec3::ZERO,
         hi: Vec3::ZERO,
         centroid: Vec3::ZERO,
         normal: Vec3::Z,
+        entry: -Vec3::Z,
         area: 0.0,
         e: Vec3::ZERO,
         start: 0,
@@ -699,10 +967,71 @@ mod tests {
         let d = Vec3::new(0.0, 0.0, -4.0);
         let through = t.geometry_factor(d, 4.0, Vec3::Z, -Vec3::Z);
         assert!(through.min_element() > 2.0, "{through}");
-        assert_eq!(t.geometry_factor(d, 4.0, Vec3::Z, Vec3::Z), Vec3::ZERO);
+        // (8 mm down: below every source of the beam.)
+        let deep = Vec3::new(0.0, 0.0, -8.0);
+        assert_eq!(t.geometry_factor(deep, 8.0, Vec3::Z, Vec3::Z), Vec3::ZERO);
+        // A beam that has crossed a thin part adds only what lies inside:
+        // the deepest sources of red, beyond x_o, are left out.
+        let thin = Vec3::new(0.0, 0.0, -2.0);
+        assert!(
+            t.geometry_factor(thin, 2.0, Vec3::Z, -Vec3::Z)
+                .min_element()
+                > 1.0
+        );
         // Without with_geometry: 1.
         let plain = RdTable::new(&p, 0.0);
         assert_eq!(plain.geometry_factor(d, 4.0, Vec3::Z, -Vec3::Z), Vec3::ONE);
+    }
+
+    #[test]
+    fn oblique_entry_moves_the_exitance_forward_and_keeps_its_total() {
+        // A plane lit by a beam refracted to 45°, heading along +x: over
+        // the plane, Σ R_d G dA keeps R_total, and its centroid lies ahead
+        // of the entry point (the classic pair is symmetric about it).
+        let p = crate::materials::preset("skin1").unwrap();
+        let t = RdTable::new(&p, 0.0).with_geometry(&p);
+        let wi = Vec3::new(1.0, 0.0, -1.0).normalize();
+        let (h, n) = (0.02f32, 800);
+        let (mut total, mut moment, mut straight) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        for i in -n..=n {
+            for j in -n..=n {
+                let dx = Vec3::new(i as f32 + 0.5, j as f32 + 0.5, 0.0) * h;
+                let r = dx.length();
+                let k = t.eval(r) * h * h;
+                let g = t.flux_factors(dx, r, Vec3::Z, wi, Vec3::Z, Vec3::ZERO).0;
+                total += k * g;
+                moment += k * g * dx.x;
+                straight += k * t.geometry_factor(dx, r, Vec3::Z, Vec3::Z) * dx.x;
+            }
+        }
+        for c in 0..3 {
+            let r_total = p.channel(c).total() as f32;
+            assert!(
+                (total[c] - r_total).abs() < 0.03 * r_total,
+                "{c}: {total} vs {r_total}"
+            );
+            let shift = moment[c] / total[c];
+            assert!(shift > 0.05, "{c}: centroid {shift} mm");
+            assert!(straight[c].abs() < 1e-3 * r_total, "{c}: {straight}");
+        }
+    }
+
+    #[test]
+    fn tangential_flux_points_away_from_the_entry() {
+        let p = crate::materials::preset("skin1").unwrap();
+        let t = RdTable::new(&p, 0.0).with_geometry(&p);
+        let dx = Vec3::new(2.0, 0.0, 0.0);
+        let (g, ahead) = t.flux_factors(dx, 2.0, Vec3::Z, -Vec3::Z, Vec3::Z, Vec3::X);
+        let (_, back) = t.flux_factors(dx, 2.0, Vec3::Z, -Vec3::Z, Vec3::Z, -Vec3::X);
+        let (_, across) = t.flux_factors(dx, 2.0, Vec3::Z, -Vec3::Z, Vec3::Z, Vec3::Y);
+        assert!((g - Vec3::ONE).abs().max_element() < 1e-4, "{g}");
+        assert!(ahead.min_element() > 0.0, "{ahead}");
+        assert!((ahead + back).abs().max_element() < 1e-5, "{ahead} {back}");
+        assert!(across.abs().max_element() < 1e-5, "{across}");
+        // Without the geometry there is no tangential part.
+        let plain = RdTable::new(&p, 0.0);
+        let (_, none) = plain.flux_factors(dx, 2.0, Vec3::Z, -Vec3::Z, Vec3::Z, Vec3::X);
+        assert_eq!(none, Vec3::ZERO);
     }
 
     #[test]
@@ -766,6 +1095,7 @@ mod tests {
             tri: vec![0],
             area: vec![2.0],
             irradiance: vec![Vec3::ONE],
+            entry: Vec::new(),
             radius: 1.0,
         };
         let tree = DipoleTree::new(&s);

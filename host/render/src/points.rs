@@ -20,6 +20,7 @@ use rayon::prelude::*;
 
 use crate::boundary::EntryShape;
 use crate::bvh::Ray;
+use crate::light::luminance;
 use crate::material::Material;
 use crate::mesh::Mesh;
 use crate::scene::Scene;
@@ -35,6 +36,10 @@ pub struct SurfaceSamples {
     pub area: Vec<f32>,
     /// Irradiance (linear RGB), already attenuated by f.
     pub irradiance: Vec<Vec3>,
+    /// The entering light's mean direction in the medium (refracted at a
+    /// smooth surface, into the mesh), weighted by luminance; unnormalised,
+    /// zero without light. Empty = straight in along the normal.
+    pub entry: Vec<Vec3>,
     /// Poisson-disk radius used, mm.
     pub radius: f32,
 }
@@ -55,6 +60,14 @@ pub enum Entrance<'a, M: Material> {
 }
 
 impl<M: Material> Entrance<'_, M> {
+    /// The index of refraction light enters through.
+    fn eta(&self) -> f64 {
+        match self {
+            Entrance::Model(m, _) => m.dipole().eta,
+            Entrance::Fresnel(eta, _) => *eta,
+        }
+    }
+
     fn eval(&self, wi_local: Vec3) -> Vec3 {
         use qhm_model::fresnel::{fresnel_dielectric, normal_transmittance};
         let (base, eta, shape) = match self {
@@ -188,12 +201,18 @@ pub fn compute_irradiance<M: Material>(
         normal,
         tri,
         irradiance,
+        entry,
         ..
     } = samples;
-    irradiance.par_iter_mut().enumerate().for_each(|(i, e)| {
-        let tangent = scene.mesh.tangents[tri[i] as usize];
-        *e = irradiance_at(scene, pos[i], normal[i], tangent, &entrance, &env_set);
-    });
+    let eta = entrance.eta() as f32;
+    let lit: Vec<(Vec3, Vec3)> = (0..pos.len())
+        .into_par_iter()
+        .map(|i| {
+            let tangent = scene.mesh.tangents[tri[i] as usize];
+            irradiance_at(scene, pos[i], normal[i], tangent, &entrance, &env_set, eta)
+        })
+        .collect();
+    (*irradiance, *entry) = lit.into_iter().unzip();
 }
 
 /// A stratified, importance-sampled set of environment directions, each
@@ -222,8 +241,9 @@ pub fn env_directions(scene: &Scene, n: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
     out
 }
 
-/// Irradiance at one surface point (two-sided), attenuated by the entrance;
-/// `env_set` from [`env_directions`].
+/// Irradiance at one surface point (two-sided), attenuated by the entrance,
+/// and the luminance-weighted sum of the directions the light enters along
+/// (refracted at index `eta`); `env_set` from [`env_directions`].
 pub fn irradiance_at<M: Material>(
     scene: &Scene,
     p: Vec3,
@@ -231,8 +251,10 @@ pub fn irradiance_at<M: Material>(
     tangent: Vec3,
     entrance: &Entrance<'_, M>,
     env_set: &[(Vec3, Vec3)],
-) -> Vec3 {
+    eta: f32,
+) -> (Vec3, Vec3) {
     let mut e = Vec3::ZERO;
+    let mut entry = Vec3::ZERO;
     let mut add = |wi: Vec3, dist: f32, radiance_term: Vec3| {
         let cos = n.dot(wi);
         if cos.abs() < 1e-6 {
@@ -247,7 +269,9 @@ pub fn irradiance_at<M: Material>(
             return;
         }
         let f = frame(ns, tangent);
-        e += entrance.eval(to_local(&f, wi)) * cos.abs() * radiance_term;
+        let de = entrance.eval(to_local(&f, wi)) * cos.abs() * radiance_term;
+        e += de;
+        entry += refract_in(wi, ns, eta) * luminance(de).max(0.0);
     };
     for light in &scene.lights {
         let s = light.sample(p);
@@ -256,7 +280,15 @@ pub fn irradiance_at<M: Material>(
     for &(wi, w) in env_set {
         add(wi, f32::INFINITY, w);
     }
-    e
+    (e, entry)
+}
+
+/// The direction light from `wi` (towards the light) travels after
+/// refraction into a smooth surface of normal `n` (on the light's side).
+fn refract_in(wi: Vec3, n: Vec3, eta: f32) -> Vec3 {
+    let cos_i = wi.dot(n).clamp(0.0, 1.0);
+    let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (eta * eta)).max(0.0).sqrt();
+    -wi / eta + n * (cos_i / eta - cos_t)
 }
 
 #[cfg(test)]

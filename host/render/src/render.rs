@@ -290,14 +290,25 @@ fn radiance<M: Material>(
         let m = match *cache {
             Some((q, m)) if q.distance_squared(p) < r2 => m,
             _ => {
-                let m = prep.tree.query_stats(
+                let (u, k) = if prep.geometry {
+                    let t = wo - ns * wo.dot(ns);
+                    let s = (t.length() / prep.eta as f32).min(1.0);
+                    let c = (1.0 - s * s).sqrt();
+                    let a = qhm_model::dipole::boundary_a(prep.eta) as f32;
+                    (t.normalize_or_zero(), 3.0 * s / (2.0 * a + 3.0 * c))
+                } else {
+                    (Vec3::ZERO, 0.0)
+                };
+                let (mn, mu) = prep.tree.query_flux(
                     p,
                     n_winding,
+                    u,
                     &prep.rd,
                     settings.epsilon,
                     settings.local_radius_mm,
                     qs,
                 );
+                let m = (mn + mu * k).max(Vec3::ZERO);
                 *queries += 1;
                 *cache = Some((p, m));
                 m
