@@ -136,7 +136,9 @@ impl RdTable {
     /// part lit from behind the flux points straight out of x_o. Negative
     /// flux (into the surface, as in a concavity) counts as 0. The normals
     /// are the mesh's own (its winding), so a mesh must be wound
-    /// consistently.
+    /// consistently. This is the pair at normal incidence; under oblique
+    /// light the sources follow the refracted beam
+    /// ([`RdTable::flux_factors`]).
     pub fn with_geometry(mut self, params: &DipoleParams) -> RdTable {
         let g: [qhm_model::dipole::Dipole; 3] = std::array::from_fn(|c| params.channel(c));
         let dr = 1.0 / self.inv_dr as f64;
@@ -273,11 +275,12 @@ impl RdTable {
     /// (normal incidence gives the classic pair). Along the beam the pairs
     /// sit at the depths of [`BEAM`] out to BEAM_REACH mean free paths from
     /// x_i, one pair at t = 1 beyond (the planar tables follow the same
-    /// split, so G is 1 on a plane lit at normal incidence either way). An oblique beam so moves
-    /// the exitance forward; its total over a plane, 2π (e^{-s_tr z'} +
-    /// e^{-s_tr (z' + 2 z_b)}), is scaled back to normal incidence's, since
-    /// the entrance (f, or the smooth boundary's entry shape) already holds
-    /// how much more an oblique beam returns.
+    /// split, so G is 1 on a plane lit at normal incidence either way). An
+    /// oblique beam so moves the exitance forward. Its total over a plane
+    /// is scaled back to normal incidence's (`oblique_norm`, integrated
+    /// numerically in [`RdTable::with_geometry`]), since the entrance (f,
+    /// or the smooth boundary's entry shape) already holds how much more
+    /// an oblique beam returns.
     ///
     /// G_u is the flux through x_o along the unit tangent `u` over the
     /// planar normal flux, u · (f_r (x_o - s_r) - f_v (x_o - s_v)) / Φ_plane
@@ -787,10 +790,11 @@ struct NearSums {
 impl NearSums {
     /// One sample (or node) at distance `r` with E A = `ea` and area `a`:
     /// the far part goes into `sum`, the near part into the sums.
-    #[inline]
     /// `g` gives the geometry and tangential factors, applied to the far
     /// part (the near field is a few sample spacings across, where the
-    /// surface is flat); `sum` takes the normal and tangential sums.
+    /// surface is flat); the light's entry cos θ_t `cos_t` gives the near
+    /// part its oblique share; `sum` takes the normal and tangential sums.
+    #[inline]
     #[allow(clippy::too_many_arguments)]
     fn add(
         &mut self,
@@ -1065,6 +1069,44 @@ mod tests {
         assert!((m1 - total).abs() < 0.01 * total, "{m1} vs {total}");
         assert!((m0 - total).abs() < 0.02 * total, "{m0} vs {total}");
         assert!(sd1 < 0.5 * sd0, "scatter {sd1} vs plain {sd0}");
+    }
+
+    #[test]
+    fn oblique_light_keeps_the_near_fields_total() {
+        // The slab above lit by a beam refracted to 60° from the normal:
+        // with the geometry and the near field, M(x) should be what normal
+        // incidence gives on the same samples, the oblique kernel's share
+        // of the near window included; without that share it is not.
+        let p = marble();
+        let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
+        let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
+        s.irradiance = vec![Vec3::ONE; s.pos.len()];
+        let straight = DipoleTree::new(&s);
+        s.entry = vec![Vec3::new(0.75f32.sqrt(), 0.0, -0.5); s.pos.len()];
+        let oblique = DipoleTree::new(&s);
+        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
+        let t = RdTable::new(&p, 2.0 * radius)
+            .with_near_field(6.0 * radius)
+            .with_geometry(&p);
+        let mut flat_near = t.clone();
+        flat_near.geometry.as_mut().unwrap().near_oblique.clear();
+        let probe = crate::points::poisson_disk(&mesh, 3000, 11);
+        let mean = |tree: &DipoleTree, t: &RdTable| {
+            let v: Vec<f32> = probe
+                .pos
+                .iter()
+                .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
+                .map(|&q| tree.brute_force(q, Vec3::Z, t, 0.0).y)
+                .collect();
+            v.iter().sum::<f32>() / v.len() as f32
+        };
+        let normal = mean(&straight, &t);
+        let (with, without) = (mean(&oblique, &t), mean(&oblique, &flat_near));
+        assert!((with - normal).abs() < 0.002 * normal, "{with} vs {normal}");
+        assert!(
+            (without - normal).abs() > 0.005 * normal,
+            "{without} vs {normal}"
+        );
     }
 
     #[test]
