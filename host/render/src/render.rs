@@ -290,6 +290,10 @@ fn radiance<M: Material>(
         let m = match *cache {
             Some((q, m)) if q.distance_squared(p) < r2 => m,
             _ => {
+                // The diffusion (P1) radiance inside, refracted out towards
+                // w_o: the flux along the view's tangent u adds
+                // 3 s' M_u / (2A + 3 c') to the normal flux M_n, s' = sin θ_o / η.
+                // (The cache above serves one pixel, so one view.)
                 let (u, k) = if prep.geometry {
                     let t = wo - ns * wo.dot(ns);
                     let s = (t.length() / prep.eta as f32).min(1.0);
