@@ -9,7 +9,9 @@
 //! the boundary's mirror reflection of the lights is taken out of them, as
 //! a homogeneous preset has no LRF to render it): the pixels compared, and
 //! of them the mean, the terminator band's (|n·l| < 0.25) mean and the
-//! 8 x 8-pixel block means with the Monte Carlo noise of each.
+//! 8 x 8-pixel block means with the Monte Carlo noise of each. A 4 mm
+//! apple slab lit from behind is compared the same way with sim-light's
+//! `qhm sim render-object` (slab-apple-back.json, slab/).
 //!
 //! The tolerances are what qhm reaches now (docs/render.md's table), with
 //! a margin for the CI-scale render (12,000 surface samples); each case
@@ -22,12 +24,14 @@ use std::path::PathBuf;
 use qhm_model::{DipoleParams, MaterialModel};
 use qhm_render::Material;
 use qhm_render::materials::preset;
-use qhm_render::{Image, RenderSettings, SceneFile, render_scene};
+use qhm_render::{Image, Mesh, RenderSettings, Scene, SceneFile, render_scene};
 
 struct Case {
     name: String,
     toml: String,
     material: String,
+    /// A mesh file under tests/data/render_reference; None = the built-in sphere.
+    mesh: Option<String>,
     pixels: Vec<Vec<u8>>,
     mean: [f64; 3],
     terminator: Option<[f64; 3]>,
@@ -53,6 +57,7 @@ fn load(case: &str) -> Case {
         name: case.into(),
         toml,
         material: v["material"].as_str().unwrap().into(),
+        mesh: v["mesh"].as_str().map(String::from),
         pixels: v["pixels"]
             .as_array()
             .unwrap()
@@ -108,7 +113,10 @@ impl Material for Before {
 
 fn render<M: Material>(case: &Case, material: &M, before: bool) -> Image {
     let file = SceneFile::parse(&case.toml, None).unwrap();
-    let mut scene = file.builtin_scene("sphere").unwrap();
+    let mut scene = match &case.mesh {
+        Some(m) => Scene::lit(Mesh::load(&data_dir().join(m), 1.0, None).unwrap()),
+        None => file.builtin_scene("sphere").unwrap(),
+    };
     file.apply_scene(&mut scene).unwrap();
     let mut settings = RenderSettings::default();
     file.apply_settings(&mut settings).unwrap();
@@ -231,6 +239,13 @@ fn skin1_sphere_back_lit_matches_the_path_tracer() {
     // Blocks are not compared: few of the reference's paths get through
     // 40 mm of skin, and its 8 x 8 blocks are mostly its own noise.
     check("skin1-back", &[0, 1, 2], 0.32, 0.32, f64::INFINITY);
+}
+
+#[test]
+fn apple_thin_slab_back_lit_matches_sim_light() {
+    // A 4 mm slab lit from below, against `qhm sim render-object` of the
+    // same mesh (tools/cache_sim.py): the light through a thin part.
+    check("slab-apple-back", &[0, 1, 2], 0.05, 0.0, 0.2);
 }
 
 #[test]

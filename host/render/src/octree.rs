@@ -282,6 +282,11 @@ impl RdTable {
     /// or the smooth boundary's entry shape) already holds how much more
     /// an oblique beam returns.
     ///
+    /// Where x_o's plane faces away from x_i's (n_o · n_i < 0, a thin
+    /// part's far side) the exit boundary's own images join, weighted by
+    /// -n_o · n_i: s_r and s_v mirrored across the plane z_b outside x_o,
+    /// with opposite signs, the first terms of the slab's multipole.
+    ///
     /// G_u is the flux through x_o along the unit tangent `u` over the
     /// planar normal flux, u · (f_r (x_o - s_r) - f_v (x_o - s_v)) / Φ_plane
     /// with f = (s_tr d + 1) e^{-s_tr d} / d³ (see
@@ -332,6 +337,10 @@ impl RdTable {
             u.dot(ni),
         );
         let (mut geo, mut flow) = (Vec4::ZERO, Vec4::ZERO);
+        // The far boundary's images count as much as x_o's plane faces the
+        // entry plane: fully on a slab's far face, not at all on the entry
+        // side (where the entry image already is the mirror).
+        let exit_w = if r < g.beam_reach { (-c).max(0.0) } else { 0.0 };
         for &(t, w) in set.depths {
             // Source k: s_r = x_i + t z_r w_i; its image s_v = s_r + q n_i.
             let zr = g.z_r * t;
@@ -339,12 +348,22 @@ impl RdTable {
             let dr2 = s(r * r) - zr * s(2.0 * wdx) + zr * zr;
             let along_r = s(ndx) + zr * cos_t;
             let dv2 = dr2 - q * along_r * 2.0 + q * q;
-            let (fr, fv) = (f(dr2), f(dv2));
             let h_r = s(h) - zr * nw;
+            let fr = f(dr2);
             // A source beyond x_o's tangent plane lies outside the object
             // there (a thin part the beam has crossed): it adds nothing.
             let w = Vec4::select(h_r.cmpgt(Vec4::ZERO), s(w), Vec4::ZERO);
+            let fv = f(dv2);
             geo += (fr * h_r - fv * (h_r - q * c)) * w;
+            if exit_w > 0.0 {
+                // Both mirrored across x_o's extrapolated plane (z_b out):
+                // a negative image of s_r, a positive one of s_v.
+                let zb = (g.z_v - g.z_r) * 0.5;
+                let h_v = h_r - q * c;
+                let fe = f(dr2 + zb * (h_r + zb) * 4.0);
+                let fve = f(dv2 + zb * (h_v + zb) * 4.0);
+                geo += (fe * (h_r + zb * 2.0) - fve * (h_v + zb * 2.0)) * (w * exit_w);
+            }
             if tangential {
                 let u_r = s(udx) - zr * uw;
                 flow += (fr * u_r - fv * (u_r - q * un)) * w;
