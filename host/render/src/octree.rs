@@ -188,19 +188,17 @@ impl RdTable {
                 Vec3::select(t.cmpgt(Vec3::splat(1e-6) * at_normal), q, Vec3::ONE).extend(1.0)
             })
             .collect();
-        let near_oblique = if self.near_radius > 0.0 && self.near_integral.min_element() > 0.0 {
-            Some(self.near_radius)
-        } else {
-            None
-        };
         if let Some(g) = &mut self.geometry {
             g.oblique_norm = norm;
         }
-        if let Some(rc) = near_oblique {
-            let near = self.plane_totals(rc, |r| self.near_weight(r));
-            let integral = self.near_integral;
+        if self.near_radius > 0.0 && self.near_integral.min_element() > 0.0 {
+            let near: Vec<Vec3> = self
+                .plane_totals(self.near_radius, |r| self.near_weight(r))
+                .iter()
+                .map(|&t| t / self.near_integral)
+                .collect();
             if let Some(g) = &mut self.geometry {
-                g.near_oblique = near.iter().map(|&t| t / integral).collect();
+                g.near_oblique = near;
             }
         }
         self
@@ -246,10 +244,7 @@ impl RdTable {
     fn near_entry(&self, cos_t: f32) -> Vec3 {
         match &self.geometry {
             Some(g) if !g.near_oblique.is_empty() && cos_t < 0.9999 => {
-                let x = cos_t.clamp(0.0, 1.0) * (OBLIQUE_STEPS - 1) as f32;
-                let i = (x as usize).min(OBLIQUE_STEPS - 2);
-                let t = x - i as f32;
-                g.near_oblique[i] * (1.0 - t) + g.near_oblique[i + 1] * t
+                at_entry_angle(&g.near_oblique, cos_t)
             }
             _ => Vec3::ONE,
         }
@@ -373,10 +368,7 @@ impl RdTable {
         let norm = if normal_entry {
             Vec4::ONE
         } else {
-            let x = cos_t.clamp(0.0, 1.0) * (OBLIQUE_STEPS - 1) as f32;
-            let i = (x as usize).min(OBLIQUE_STEPS - 2);
-            let t = x - i as f32;
-            g.oblique_norm[i] * (1.0 - t) + g.oblique_norm[i + 1] * t
+            at_entry_angle(&g.oblique_norm, cos_t)
         };
         let usable = planar.cmpgt(Vec4::ZERO) & geo.is_finite_mask() & norm.is_finite_mask();
         let normal =
@@ -856,6 +848,18 @@ impl NearSums {
     }
 }
 
+/// A table over cos θ_t = k / (OBLIQUE_STEPS - 1), interpolated linearly.
+#[inline]
+fn at_entry_angle<T>(table: &[T], cos_t: f32) -> T
+where
+    T: Copy + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
+    let x = cos_t.clamp(0.0, 1.0) * (OBLIQUE_STEPS - 1) as f32;
+    let i = (x as usize).min(OBLIQUE_STEPS - 2);
+    let t = x - i as f32;
+    table[i] * (1.0 - t) + table[i + 1] * t
+}
+
 /// The unit entry direction from an (unnormalised) weighted sum, or
 /// straight in along the normal `n` when there is none or it points out.
 fn entry_or_normal(sum: Option<Vec3>, n: Vec3) -> Vec3 {
@@ -1057,27 +1061,38 @@ mod tests {
         assert_eq!(none, Vec3::ZERO);
     }
 
+    /// Poisson-disk samples on a wide flat slab under unit irradiance,
+    /// their equal-area radius, and a second set of points to probe at.
+    fn lit_slab() -> (SurfaceSamples, f32, SurfaceSamples) {
+        let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
+        let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
+        s.irradiance = vec![Vec3::ONE; s.pos.len()];
+        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
+        (s, radius, crate::points::poisson_disk(&mesh, 3000, 11))
+    }
+
+    /// M(x) (green) at the probes on the middle of the slab's top face.
+    fn top_exitance(tree: &DipoleTree, t: &RdTable, probe: &SurfaceSamples) -> Vec<f32> {
+        probe
+            .pos
+            .iter()
+            .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
+            .map(|&q| tree.brute_force(q, Vec3::Z, t, 0.0).y)
+            .collect()
+    }
+
     #[test]
     fn near_field_keeps_the_integral_and_removes_the_sample_pattern() {
         // Poisson-disk samples on a wide flat slab under constant
         // irradiance: M(x) should be R_total everywhere. The plain sum
         // scatters with the sample pattern; the near field's mean does not.
         let p = marble();
-        let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
-        let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
-        s.irradiance = vec![Vec3::ONE; s.pos.len()];
-        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
+        let (s, radius, probe) = lit_slab();
         let tree = DipoleTree::new(&s);
         let plain = RdTable::new(&p, 2.0 * radius);
         let near = RdTable::new(&p, 2.0 * radius).with_near_field(6.0 * radius);
-        let probe = crate::points::poisson_disk(&mesh, 3000, 11);
         let stats = |t: &RdTable| {
-            let v: Vec<f32> = probe
-                .pos
-                .iter()
-                .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
-                .map(|&q| tree.brute_force(q, Vec3::Z, t, 0.0).y)
-                .collect();
+            let v = top_exitance(&tree, t, &probe);
             let m = v.iter().sum::<f32>() / v.len() as f32;
             let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f32>() / v.len() as f32).sqrt();
             (m, sd / m)
@@ -1097,26 +1112,17 @@ mod tests {
         // incidence gives on the same samples, the oblique kernel's share
         // of the near window included; without that share it is not.
         let p = marble();
-        let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
-        let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
-        s.irradiance = vec![Vec3::ONE; s.pos.len()];
+        let (mut s, radius, probe) = lit_slab();
         let straight = DipoleTree::new(&s);
         s.entry = vec![Vec3::new(0.75f32.sqrt(), 0.0, -0.5); s.pos.len()];
         let oblique = DipoleTree::new(&s);
-        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
         let t = RdTable::new(&p, 2.0 * radius)
             .with_near_field(6.0 * radius)
             .with_geometry(&p);
         let mut flat_near = t.clone();
         flat_near.geometry.as_mut().unwrap().near_oblique.clear();
-        let probe = crate::points::poisson_disk(&mesh, 3000, 11);
         let mean = |tree: &DipoleTree, t: &RdTable| {
-            let v: Vec<f32> = probe
-                .pos
-                .iter()
-                .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
-                .map(|&q| tree.brute_force(q, Vec3::Z, t, 0.0).y)
-                .collect();
+            let v = top_exitance(tree, t, &probe);
             v.iter().sum::<f32>() / v.len() as f32
         };
         let normal = mean(&straight, &t);
