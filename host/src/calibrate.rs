@@ -228,10 +228,11 @@ async fn capture_async(a: &RigSpec, out: &Path) -> Result<bool> {
                 );
             }
             bars.note(&format!(
-                "calibration capture complete: {} frames ({} written now), {} MCU resets recovered",
+                "calibration capture complete: {} frames ({} written now), {} MCU resets recovered, {} steps retaken for damaged frames",
                 dir.frame_count(),
                 report.frames_written,
-                report.resets_recovered
+                report.resets_recovered,
+                report.retakes
             ));
             Ok(true)
         }

@@ -1,16 +1,21 @@
 //! Capture runs on the built-in simulated rig survive interruptions: the run
 //! future dropped at random moments (Ctrl-C, a host crash), a journal torn
 //! mid-line with a half-written frame left behind (kill -9 during a write),
-//! and MCU resets injected through the emulator; each time the resumed
-//! capture directory is byte-for-byte the uninterrupted one.
+//! MCU resets injected through the emulator, and cameras that deliver
+//! damaged buffers; each time the resumed capture directory is byte-for-byte
+//! the uninterrupted one.
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use protocol::LaserColour;
+use qhm_acquire::camera::{BoxFuture, Camera, CameraError, CameraInfo, CameraSettings, Frame};
 use qhm_acquire::{
-    CaptureDir, Manifest, Plan, PlanConfig, Progress, RunOptions, RunReport, Scale, run_capture,
+    CaptureDir, Manifest, NoProgress, Plan, PlanConfig, Progress, RunOptions, RunReport, Scale,
+    run_capture,
 };
 use sha2::{Digest, Sha256};
 use sim_devices::{SimRig, SimRigConfig};
@@ -273,6 +278,80 @@ async fn interrupted_and_reset_captures_equal_the_uninterrupted_one() {
     );
     drop(dir);
     assert_same_files(&reset_dir, &want, "capture with resets");
+
+    // Damaged frames (a cleared or incomplete buffer): retaken in place.
+    let flaky_dir = tmp.path().join("flaky");
+    let mut dir = CaptureDir::create(&flaky_dir, manifest(&plan)).unwrap();
+    let mut rig = start_rig().await;
+    let opts = options(&rig);
+    let bad_at: Vec<usize> = vec![
+        1 + rng.below(plan.frames() as u64 / 2) as usize,
+        plan.frames() / 2 + 1 + rng.below(plan.frames() as u64 / 3) as usize,
+    ];
+    let calls = Arc::new(AtomicUsize::new(0));
+    let mut cameras: Vec<Box<dyn Camera>> = std::mem::take(&mut rig.cameras)
+        .into_iter()
+        .map(|inner| {
+            Box::new(Flaky {
+                inner,
+                calls: calls.clone(),
+                bad_at: bad_at.clone(),
+            }) as Box<dyn Camera>
+        })
+        .collect();
+    let mut op = rig.handle.operator();
+    let report = run_capture(
+        &rig.link,
+        &mut cameras,
+        &mut op,
+        &mut dir,
+        &opts,
+        &mut NoProgress,
+    )
+    .await
+    .expect("run with damaged frames");
+    assert!(report.complete);
+    assert_eq!(report.retakes, 2, "{report:?}");
+    drop(dir);
+    assert_same_files(&flaky_dir, &want, "capture with damaged frames");
+}
+
+/// A camera whose `next_frame` calls number `bad_at` (counted over all the
+/// cameras sharing `calls`, from 1) take their frame and report it damaged,
+/// as Aravis does for a buffer that comes back cleared or incomplete.
+struct Flaky {
+    inner: Box<dyn Camera>,
+    calls: Arc<AtomicUsize>,
+    bad_at: Vec<usize>,
+}
+
+impl Camera for Flaky {
+    fn info(&self) -> CameraInfo {
+        self.inner.info()
+    }
+    fn configure(&mut self, settings: CameraSettings) -> BoxFuture<'_, Result<(), CameraError>> {
+        self.inner.configure(settings)
+    }
+    fn arm(&mut self, tags: Vec<u64>) -> BoxFuture<'_, Result<(), CameraError>> {
+        self.inner.arm(tags)
+    }
+    fn next_frame(&mut self, timeout: Duration) -> BoxFuture<'_, Result<Frame, CameraError>> {
+        let n = self.calls.fetch_add(1, Ordering::SeqCst) + 1;
+        let bad = self.bad_at.contains(&n);
+        Box::pin(async move {
+            let frame = self.inner.next_frame(timeout).await?;
+            if bad {
+                return Err(CameraError::BadFrame(format!(
+                    "camera {}: buffer status Cleared",
+                    frame.meta.camera
+                )));
+            }
+            Ok(frame)
+        })
+    }
+    fn disarm(&mut self) -> BoxFuture<'_, Result<(), CameraError>> {
+        self.inner.disarm()
+    }
 }
 
 /// A host that dies leaves the MCU running with its arc wherever it stopped

@@ -13,9 +13,12 @@
 //! to settle; axis moves are awaited plus their settling time). The axes are
 //! homed once, or again after an MCU reset (positions are lost). A reset in the
 //! middle of a step (`LinkError::DeviceReset`) re-homes and repeats the step;
-//! frames already journaled are kept, not rewritten. Anything else (a
-//! disconnect, a camera failure, a refused command) ends the run with an error
-//! and leaves a directory that `--resume` continues.
+//! frames already journaled are kept, not rewritten. A frame a camera
+//! delivers damaged (`CameraError::BadFrame`: an incomplete or cleared
+//! buffer, a software trigger whose frame never came) or out of turn is
+//! retaken by repeating the step without re-homing. Anything else (a
+//! disconnect, a camera that stays silent, a refused command) ends the run
+//! with an error and leaves a directory that `--resume` continues.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -63,6 +66,8 @@ pub struct RunOptions {
     pub frame_timeout: Duration,
     /// MCU resets tolerated within one step before giving up.
     pub max_resets_per_step: u32,
+    /// Retakes of one step's frames after damaged frames before giving up.
+    pub max_retakes_per_step: u32,
     /// Virtual seconds per wall second of the rig (1 on a real rig); scales
     /// the settling waits the host times itself.
     pub time_scale: f64,
@@ -76,6 +81,7 @@ impl Default for RunOptions {
         RunOptions {
             frame_timeout: Duration::from_secs(120),
             max_resets_per_step: 3,
+            max_retakes_per_step: 3,
             time_scale: 1.0,
             stop_after_steps: None,
         }
@@ -103,6 +109,8 @@ pub struct RunReport {
     pub frames_written: usize,
     pub frames_kept: usize,
     pub resets_recovered: u32,
+    /// Steps repeated to retake damaged frames.
+    pub retakes: u32,
     pub complete: bool,
 }
 
@@ -155,7 +163,7 @@ pub async fn run_capture(
         if opts.stop_after_steps.is_some_and(|n| report.steps_run >= n) {
             break;
         }
-        let mut resets = 0;
+        let (mut resets, mut retakes) = (0, 0);
         loop {
             let r = run_step(
                 link,
@@ -211,6 +219,17 @@ pub async fn run_capture(
                         c.disarm().await?;
                     }
                 }
+                Err(e) if retakeable(&e) && retakes < opts.max_retakes_per_step => {
+                    retakes += 1;
+                    report.retakes += 1;
+                    progress.note(&format!(
+                        "step {}: {e}; retaking the step's frames",
+                        step.index
+                    ));
+                    for c in cameras.iter_mut() {
+                        c.disarm().await?;
+                    }
+                }
                 Err(e) => {
                     safe_off(link).await;
                     return Err(e);
@@ -241,6 +260,15 @@ fn recoverable(e: &RunError) -> bool {
         }) => true,
         _ => false,
     }
+}
+
+/// A frame lost or damaged on its way from the camera: the step is repeated
+/// (frames already journaled are kept).
+fn retakeable(e: &RunError) -> bool {
+    matches!(
+        e,
+        RunError::Camera(CameraError::BadFrame(_)) | RunError::WrongFrame { .. }
+    )
 }
 
 /// Laser off, lamps off; best effort (the MCU's own safety does the rest).

@@ -467,7 +467,7 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
         }
         Some(Ok(report)) => {
             eprintln!(
-                "capture {}: {} frames written now, {} total, {} MCU resets recovered",
+                "capture {}: {} frames written now, {} total, {} MCU resets recovered, {} steps retaken for damaged frames",
                 if report.complete {
                     "complete"
                 } else {
@@ -475,7 +475,8 @@ async fn run_cmd(a: RunArgs) -> Result<ExitCode> {
                 },
                 report.frames_written,
                 dir.frame_count(),
-                report.resets_recovered
+                report.resets_recovered,
+                report.retakes
             );
             if let Some(s) = a.shard.filter(|_| report.complete) {
                 eprintln!(
