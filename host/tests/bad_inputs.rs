@@ -609,6 +609,9 @@ fn cases() -> Vec<(String, &'static str)> {
         "--model bogus",
         "--lrf-components abc",
         "--lrf-components=-1",
+        "--lrf-denoise 0",
+        "--lrf-denoise bogus",
+        "--lrf-denoise=-3",
     ] {
         add(format!("fit rect_garbage -o new_model {a}"), "");
     }

@@ -1,8 +1,7 @@
 //! Optional LRF compression: one PCA basis over the (light, view, channel)
 //! dimension shared by all texels, and k coefficients per texel. An LRF of
 //! S samples on N texels shrinks from 3·S·N floats to (k+1)·3·S + k·N.
-//! The basis comes from subspace iteration on the centred data (no D×D
-//! covariance is formed, so many samples stay cheap).
+//! The basis is the leading principal components ([`crate::pca`]).
 
 use std::path::Path;
 
@@ -11,6 +10,7 @@ use rayon::prelude::*;
 use crate::ModelError;
 use crate::exrio::{read_rgb, write_rgb};
 use crate::model::Texture;
+use crate::pca::{TexelMatrix, principal_components};
 
 /// A PCA-coded LRF.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,68 +29,20 @@ pub struct Pca {
 impl Pca {
     /// Fits `k` components (clamped to the data's size) to the LRF maps.
     pub fn fit(maps: &[Texture], k: usize) -> Self {
-        let s = maps.len();
-        let (width, height) = (maps[0].width, maps[0].height);
-        let n = width * height;
-        let d = 3 * s;
-        let k = k.clamp(1, d.min(n));
-        let x: Vec<Vec<f64>> = (0..n)
-            .into_par_iter()
-            .map(|p| (0..d).map(|i| maps[i / 3].data[p][i % 3] as f64).collect())
-            .collect();
-        let mut mean = vec![0.0f64; d];
-        for row in &x {
-            for i in 0..d {
-                mean[i] += row[i] / n as f64;
-            }
-        }
-        let xc: Vec<Vec<f64>> = x
-            .into_par_iter()
-            .map(|row| row.iter().zip(&mean).map(|(a, m)| a - m).collect())
-            .collect();
-        // Deterministic start, then subspace iteration Q <- orth(Xᵀ X Q).
-        let mut q: Vec<Vec<f64>> = (0..k)
-            .map(|j| {
-                (0..d)
-                    .map(|i| ((i + 1) as f64 * (j as f64 + 1.3) * 0.618).sin())
-                    .collect()
-            })
-            .collect();
-        orthonormalise(&mut q);
-        for _ in 0..60 {
-            let y: Vec<Vec<f64>> = xc
-                .par_iter()
-                .map(|row| q.iter().map(|b| dot(row, b)).collect())
-                .collect();
-            let mut z: Vec<Vec<f64>> = (0..k)
-                .into_par_iter()
-                .map(|j| {
-                    let mut v = vec![0.0; d];
-                    for (row, yr) in xc.iter().zip(&y) {
-                        for i in 0..d {
-                            v[i] += row[i] * yr[j];
-                        }
-                    }
-                    v
-                })
-                .collect();
-            orthonormalise(&mut z);
-            q = z;
-        }
-        let coeffs = xc
-            .par_iter()
-            .map(|row| q.iter().map(|b| dot(row, b) as f32).collect())
-            .collect();
+        let x = TexelMatrix::new(maps);
+        let pc = principal_components(&x, k.max(1));
+        let k = pc.basis.len();
         Pca {
-            width,
-            height,
-            samples: s,
-            mean: mean.iter().map(|&m| m as f32).collect(),
-            basis: q
+            width: maps[0].width,
+            height: maps[0].height,
+            samples: maps.len(),
+            mean: x.mean.iter().map(|&m| m as f32).collect(),
+            basis: pc
+                .basis
                 .iter()
                 .map(|b| b.iter().map(|&v| v as f32).collect())
                 .collect(),
-            coeffs,
+            coeffs: pc.coeffs.chunks(k.max(1)).map(|c| c.to_vec()).collect(),
         }
     }
 
@@ -244,35 +196,6 @@ impl Pca {
             basis: (1..=k).map(row).collect(),
             coeffs,
         })
-    }
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// Modified Gram-Schmidt; a vanishing vector is replaced by a unit axis
-/// orthogonal to the others so the basis keeps its size.
-fn orthonormalise(v: &mut [Vec<f64>]) {
-    for j in 0..v.len() {
-        for attempt in 0..=v[j].len() {
-            for i in 0..j {
-                let p = dot(&v[j], &v[i]);
-                let vi = v[i].clone();
-                for (a, b) in v[j].iter_mut().zip(&vi) {
-                    *a -= p * b;
-                }
-            }
-            let n = dot(&v[j], &v[j]).sqrt();
-            if n > 1e-12 {
-                v[j].iter_mut().for_each(|a| *a /= n);
-                break;
-            }
-            let d = v[j].len();
-            v[j] = (0..d)
-                .map(|i| if i == (j + attempt) % d { 1.0 } else { 0.0 })
-                .collect();
-        }
     }
 }
 

@@ -20,6 +20,9 @@
 //!    formula after eq. 6 with I(p, l) from the dipole of eq. 5).
 //! 6. LRF = (L - f_v T(0) f(w_i) E cos θ_i (R_total - R_texel) / π) / E,
 //!    negatives kept.
+//!    Before the global term is taken away, the lamp images' texels are
+//!    projected onto the principal components that cross-validation finds
+//!    above the noise ([`crate::denoise`]).
 
 mod bins;
 mod entrance;
@@ -28,10 +31,13 @@ mod global;
 mod lrf;
 mod stripes;
 
+pub use lrf::LampGlobalTerm;
+
 use std::path::Path;
 use std::time::Instant;
 
 use crate::ModelError;
+use crate::denoise::LrfDenoise;
 use crate::dipole;
 use crate::model::{FitDiagnostics, FitTimings, MaterialModel};
 use crate::profile::Norm;
@@ -55,6 +61,8 @@ pub struct FitOptions {
     pub n_phi: usize,
     /// Width of the distance bins of I(d), mm (None: an eighth of a texel).
     pub bin_mm: Option<f64>,
+    /// Principal components the LRF keeps ([`crate::denoise`]).
+    pub lrf_denoise: LrfDenoise,
 }
 
 impl Default for FitOptions {
@@ -67,6 +75,7 @@ impl Default for FitOptions {
             n_theta: 10,
             n_phi: 24,
             bin_mm: None,
+            lrf_denoise: LrfDenoise::default(),
         }
     }
 }
@@ -138,11 +147,21 @@ pub fn fit_capture_with_progress(
     let [_, _, ww, wh] = window;
     timings.exiting = t0.elapsed().as_secs_f64();
 
-    // 6: the local reflectance function from the lamp images.
+    // 6, 7: the local reflectance function from the lamp images, denoised.
     let t0 = Instant::now();
-    let lrf = lrf::fit_lrf(
-        &data, &dipole, &entrance, &exiting, window, &mut notes, &step,
+    let (lrf, lrf_denoise) = lrf::fit_lrf(
+        &data,
+        &dipole,
+        &entrance,
+        &exiting,
+        window,
+        opts.lrf_denoise,
+        &mut notes,
+        &step,
     )?;
+    if let Some(r) = &lrf_denoise {
+        notes.push(r.note());
+    }
     timings.lrf = t0.elapsed().as_secs_f64();
 
     let model = MaterialModel {
@@ -161,6 +180,7 @@ pub fn fit_capture_with_progress(
             calibration: data.index.calibration.clone(),
             capture_dir: Some(capture_dir.display().to_string()),
             window: Some(window),
+            lrf_denoise,
         }),
     };
     model.check(capture_dir)?;

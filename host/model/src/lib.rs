@@ -35,6 +35,7 @@ pub mod compress;
 pub mod denoise;
 mod exrio;
 pub mod format;
+mod pca;
 
 pub use exrio::{read_rgb, write_rgb};
 pub use format::{SaveOptions, SaveReport};

@@ -155,6 +155,9 @@ pub struct FitDiagnostics {
     /// (i, j) is rectified texel (i0 + i, j0 + j)). Absent: the whole window.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub window: Option<[u32; 4]>,
+    /// What the LRF's denoising kept and removed; absent when it was off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lrf_denoise: Option<crate::denoise::DenoiseReport>,
 }
 
 /// The four-part material model.

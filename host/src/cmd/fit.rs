@@ -9,6 +9,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use host::output::{OutputKind, StagedDir};
 use qhm_model::ProfileModel;
+use qhm_model::denoise::LrfDenoise;
 use qhm_model::dipole::DEFAULT_ETA;
 use qhm_model::profile::Norm;
 use qhm_model::{Profile, fit_profile};
@@ -164,6 +165,23 @@ pub struct FitArgs {
     /// Compress the LRF to this many PCA components (default: uncompressed).
     #[arg(long)]
     pub lrf_components: Option<usize>,
+    /// Denoise the LRF by keeping its principal components above the
+    /// noise (`auto`), exactly N of them, or not at all (`off`).
+    #[arg(long, default_value = "auto", value_parser = parse_denoise)]
+    pub lrf_denoise: LrfDenoise,
+}
+
+fn parse_denoise(s: &str) -> Result<LrfDenoise, String> {
+    match s {
+        "auto" => Ok(LrfDenoise::Auto),
+        "off" => Ok(LrfDenoise::Off),
+        n => match n.parse::<usize>() {
+            Ok(k) if k > 0 => Ok(LrfDenoise::Components(k)),
+            _ => Err(format!(
+                "`{s}` is not auto, off or a number of components (1 or more)"
+            )),
+        },
+    }
 }
 
 pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
@@ -172,6 +190,7 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
         range: args.range,
         norm: args.norm.into(),
         model: args.model.into(),
+        lrf_denoise: args.lrf_denoise,
         ..Default::default()
     };
     if !args.capture_dir.join("rectified/index.toml").is_file() {

@@ -1,5 +1,7 @@
-//! Step 6 of the fit: the local reflectance function, each lamp image less
-//! the global term the model already explains, per unit irradiance.
+//! Steps 6 and 7 of the fit: the local reflectance function, each lamp
+//! image less the global term the model already explains, per unit
+//! irradiance; denoised on the lamp images' own values, before the global
+//! term is taken away.
 
 use std::f64::consts::PI;
 
@@ -7,6 +9,7 @@ use rayon::prelude::*;
 
 use super::stripes::f32v;
 use crate::ModelError;
+use crate::denoise::{DenoiseReport, LrfDenoise, denoise_lrf};
 use crate::fresnel::normal_transmittance;
 use crate::model::{EntranceFunction, ExitingFunction, LocalReflectance, LrfSample, Texture};
 use crate::rectified::Rectified;
@@ -14,76 +17,165 @@ use crate::subsurface::DipoleParams;
 
 /// The LRF of every lamp image of `data` over `window` ([i0, j0, width,
 /// height] of the rectified grid), given the fitted global term, f(w_i) and
-/// f_v. `step` is called once per lamp image.
+/// f_v, with the lamp images denoised as `denoise` says. `step` is called
+/// once per lamp image.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn fit_lrf(
     data: &Rectified,
     dipole: &DipoleParams,
     entrance: &EntranceFunction,
     exiting: &ExitingFunction,
     window: [u32; 4],
+    denoise: LrfDenoise,
     notes: &mut Vec<String>,
     step: &(dyn Fn() + Sync),
-) -> Result<LocalReflectance, ModelError> {
-    let grid = data.index.grid;
+) -> Result<(LocalReflectance, Option<DenoiseReport>), ModelError> {
     let [i0, j0, ww, wh] = window.map(|x| x as usize);
-    // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
-    let t_in = normal_transmittance(dipole.eta);
-    // The texel's own area as an equal-area disc: the paper's x_i != x_o.
-    let r0 = grid.texel_mm / PI.sqrt();
-    let subsurface = dipole.subsurface();
-    let global: [f64; 3] =
-        std::array::from_fn(|c| t_in * (subsurface.total(c) - subsurface.disc_integral(c, r0)));
-    let lrf: Vec<(LrfSample, Texture, usize)> = data
+    // The lamp images per unit irradiance over the window.
+    let lamps: Vec<(LrfSample, Texture, usize)> = data
         .index
         .lamp
         .par_iter()
         .map(|lamp| -> Result<_, ModelError> {
             let img = data.read_image(&lamp.file)?;
-            let f = entrance.eval(f32v(lamp.light_dir));
-            let cos_i = lamp.light_dir[2].max(0.0);
-            let wo = f32v(lamp.view_dir);
             let mut nan = 0;
             let out = (0..ww * wh)
                 .map(|p| {
-                    let uv = [
-                        ((p % ww) as f32 + 0.5) / ww as f32,
-                        ((p / ww) as f32 + 0.5) / wh as f32,
-                    ];
-                    let fv = exiting.eval(uv, wo);
                     let l = img.get(i0 + p % ww, j0 + p / ww);
                     std::array::from_fn(|c| {
                         if !l[c].is_finite() {
                             nan += 1;
-                            return 0.0;
+                            return f32::NAN;
                         }
-                        let e = lamp.irradiance[c];
-                        let g = fv[c] as f64 * f[c] as f64 * e * cos_i * global[c] / PI;
-                        ((l[c] as f64 - g) / e) as f32
+                        (l[c] as f64 / lamp.irradiance[c]) as f32
                     })
                 })
                 .collect();
             step();
             let sample = LrfSample {
                 light: f32v(lamp.light_dir),
-                view: wo,
+                view: f32v(lamp.view_dir),
             };
-            Ok((
-                sample,
-                Texture {
-                    width: ww,
-                    height: wh,
-                    data: out,
-                },
-                nan,
-            ))
+            let texture = Texture {
+                width: ww,
+                height: wh,
+                data: out,
+            };
+            Ok((sample, texture, nan))
         })
         .collect::<Result<_, _>>()?;
-    let nan: usize = lrf.iter().map(|x| x.2).sum();
+    let nan: usize = lamps.iter().map(|x| x.2).sum();
+    let (samples, mut maps): (Vec<LrfSample>, Vec<Texture>) =
+        lamps.into_iter().map(|x| (x.0, x.1)).unzip();
+    // An invalid texel-channel takes the sample's mean over the valid ones
+    // for the denoising (a neutral value for the components), and 0 in the
+    // LRF afterwards.
+    let invalid: Vec<Vec<[bool; 3]>> = maps
+        .iter()
+        .map(|m| m.data.iter().map(|v| v.map(|x| !x.is_finite())).collect())
+        .collect();
     if nan > 0 {
+        for m in &mut maps {
+            let mean: [f32; 3] = std::array::from_fn(|c| {
+                let (s, n) = m
+                    .data
+                    .iter()
+                    .filter(|v| v[c].is_finite())
+                    .fold((0.0f64, 0usize), |(s, n), v| (s + v[c] as f64, n + 1));
+                (s / n.max(1) as f64) as f32
+            });
+            for v in &mut m.data {
+                for c in 0..3 {
+                    if !v[c].is_finite() {
+                        v[c] = mean[c];
+                    }
+                }
+            }
+        }
         notes.push(format!(
             "LRF: {nan} texel-channels were not valid in the lamp images; set to 0"
         ));
     }
-    let (samples, maps) = lrf.into_iter().map(|x| (x.0, x.1)).unzip();
-    Ok(LocalReflectance { samples, maps })
+    let mut lights: Vec<[f32; 3]> = Vec::new();
+    let light: Vec<usize> = samples
+        .iter()
+        .map(|s| match lights.iter().position(|l| *l == s.light) {
+            Some(i) => i,
+            None => {
+                lights.push(s.light);
+                lights.len() - 1
+            }
+        })
+        .collect();
+    let report = denoise_lrf(&mut maps, &light, denoise);
+    let global = LampGlobalTerm::new(dipole, entrance, exiting, data.index.grid.texel_mm);
+    maps.par_iter_mut()
+        .zip(&samples)
+        .zip(&invalid)
+        .for_each(|((m, s), bad)| {
+            let g = global.eval(ww, wh, s);
+            for ((v, gv), b) in m.data.iter_mut().zip(&g.data).zip(bad) {
+                for c in 0..3 {
+                    v[c] = if b[c] { 0.0 } else { v[c] - gv[c] };
+                }
+            }
+        });
+    Ok((LocalReflectance { samples, maps }, report))
+}
+
+/// The global term of a lamp image per unit irradiance, at each texel for
+/// the light and view of a sample: f_v(x, w_o) T(0) f(w_i) cos θ_i
+/// (R_total - R_texel) / π, R_texel the model's R_d integrated over the
+/// texel's own area (an equal-area disc: the paper's Σ over x_i ≠ x_o for
+/// uniform lamp light).
+pub struct LampGlobalTerm<'a> {
+    entrance: &'a EntranceFunction,
+    exiting: &'a ExitingFunction,
+    /// T(0) (R_total - R_texel) / π per channel.
+    per_cos: [f64; 3],
+}
+
+impl<'a> LampGlobalTerm<'a> {
+    /// For texels of `texel_mm`.
+    pub fn new(
+        dipole: &DipoleParams,
+        entrance: &'a EntranceFunction,
+        exiting: &'a ExitingFunction,
+        texel_mm: f64,
+    ) -> Self {
+        // Light entering per incident flux at normal incidence (f(w_i) is relative to it).
+        let t_in = normal_transmittance(dipole.eta);
+        let r0 = texel_mm / PI.sqrt();
+        let subsurface = dipole.subsurface();
+        LampGlobalTerm {
+            entrance,
+            exiting,
+            per_cos: std::array::from_fn(|c| {
+                t_in * (subsurface.total(c) - subsurface.disc_integral(c, r0)) / PI
+            }),
+        }
+    }
+
+    /// The term over a `width` x `height` window (f_v's whole texture).
+    pub fn eval(&self, width: usize, height: usize, sample: &LrfSample) -> Texture {
+        let f = self.entrance.eval(sample.light);
+        let cos_i = sample.light[2].max(0.0) as f64;
+        let data = (0..width * height)
+            .map(|p| {
+                let uv = [
+                    ((p % width) as f32 + 0.5) / width as f32,
+                    ((p / width) as f32 + 0.5) / height as f32,
+                ];
+                let fv = self.exiting.eval(uv, sample.view);
+                std::array::from_fn(|c| {
+                    (fv[c] as f64 * f[c] as f64 * cos_i * self.per_cos[c]) as f32
+                })
+            })
+            .collect();
+        Texture {
+            width,
+            height,
+            data,
+        }
+    }
 }
