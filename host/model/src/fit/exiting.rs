@@ -91,8 +91,8 @@ pub(super) fn fit_exiting(
 /// f_v of one view over the whole window (NaN where a channel has no
 /// stripe data): f_v(x) = A Σ_l L(x, l) / Σ_l flux_l Ī(d(x, l)), with Ī(d)
 /// the view's own measured profile (radiance per flux, the mean over its
-/// texels at distance d in texel-wide bins, smoothed [1, 2, 1] and
-/// interpolated linearly), and A = Σ L / Σ T(0) I_D flux / π over the
+/// texels at signed distance d in bins an eighth of a texel wide, smoothed
+/// [1, 2, 1] and interpolated linearly), and A = Σ L / Σ T(0) I_D flux / π over the
 /// fitted range (the formula after paper eq. 6, pooled over the view's
 /// texels): A sets the view's level against the dipole, Ī its shape. With
 /// I_D in place of Ī each texel's f_v took the model's misfit at its own
@@ -115,7 +115,16 @@ fn exiting_view(
     for c in 0..3 {
         let [d0, d1] = fv_range[c];
         let [lo, hi] = channels[c].fit.range_mm;
-        let nb = (d1 / tx).ceil() as usize + 1;
+        // Signed distance bins an eighth of a texel wide: each side of the
+        // line has its own profile (a view's line sits a little off the
+        // light's, towards the camera, and its blur is not symmetric), and
+        // the steep core is followed closely enough that a texel's ratio to
+        // it does not depend on where the texel falls within a bin (with
+        // texel-wide bins, hatching along the lines at the texel scale).
+        let bw = tx / PROFILE_BINS_PER_TEXEL;
+        let half = (d1 / bw).ceil() as usize + 1;
+        let nb = 2 * half;
+        let bin = |sd: f64| (((sd / bw) + half as f64).max(0.0) as usize).min(nb - 1);
         // Per bin: Σ L / flux, Σ d, count; and the level A over the fitted range.
         let (mut sl, mut sm) = (vec![0.0; nb], vec![0.0; nb]);
         let (mut sd, mut n) = (vec![0.0; nb], vec![0.0; nb]);
@@ -124,14 +133,15 @@ fn exiting_view(
             for j in 0..h {
                 for i in 0..w {
                     let l = img.get(i, j)[c] as f64;
-                    let d = s.distance(grid.centre(i, j));
+                    let sgn = s.signed_distance(grid.centre(i, j));
+                    let d = sgn.abs();
                     if !l.is_finite() || d < d0 || d > d1 {
                         continue;
                     }
-                    let b = ((d / tx) as usize).min(nb - 1);
+                    let b = bin(sgn);
                     sl[b] += l / s.flux_per_mm;
                     sm[b] += tables[c].texel_mean(d, tx);
-                    sd[b] += d;
+                    sd[b] += sgn;
                     n[b] += 1.0;
                     if d >= lo && d <= hi {
                         a_num += l;
@@ -178,17 +188,17 @@ fn exiting_view(
                 a.1 + t * (b.1 - a.1)
             }
         };
-        let profile = |d: f64| tables[c].texel_mean(d, tx) * ratio(d);
+        let profile = |sgn: f64| tables[c].texel_mean(sgn.abs(), tx) * ratio(sgn);
         let mut num = vec![0.0; w * h];
         let mut den = vec![0.0; w * h];
         for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
             for j in 0..h {
                 for i in 0..w {
                     let l = img.get(i, j)[c] as f64;
-                    let d = s.distance(grid.centre(i, j));
-                    if l.is_finite() && d >= d0 && d <= d1 {
+                    let sgn = s.signed_distance(grid.centre(i, j));
+                    if l.is_finite() && sgn.abs() >= d0 && sgn.abs() <= d1 {
                         num[j * w + i] += l;
-                        den[j * w + i] += s.flux_per_mm * profile(d);
+                        den[j * w + i] += s.flux_per_mm * profile(sgn);
                     }
                 }
             }
@@ -208,6 +218,9 @@ fn exiting_view(
     }
     out
 }
+/// Bins per texel of a view's measured profile (over signed distance).
+const PROFILE_BINS_PER_TEXEL: f64 = 8.0;
+
 /// A texel counts as reached by a view's stripes when their summed
 /// expected signal there is at least this share of the median texel's.
 const REACH: f64 = 0.05;
