@@ -1,8 +1,10 @@
 //! LRF noise: a per-texel measure of it, and denoising by projecting every
-//! texel's LRF (all samples and channels) onto the leading principal
-//! components the texels share ([`crate::pca`]).
+//! texel's values over the LRF's samples (all lamp images and channels)
+//! onto the leading principal components the texels share ([`crate::pca`]).
+//! The fit denoises the lamp response, the lamp images per unit irradiance,
+//! before it takes the global term away.
 //!
-//! Each texel's LRF is a vector of D = 3·samples values. The texels of a
+//! Each texel's values are a vector of D = 3·samples. The texels of a
 //! quasi-homogeneous sample vary along a few directions of that space (the
 //! mesostructure's few kinds of local response), while the noise of the lamp
 //! images is independent from image to image. How many components carry
@@ -14,7 +16,7 @@
 //! fitted on one half of the texels and samples predict the other half of
 //! the samples on the other half of the texels, whose noise the prediction
 //! never saw.
-//! The rank with the least held-out error, summed over the four ways to
+//! The rank with the least held-out error, averaged over the four ways to
 //! choose the halves, is kept. A component of noise predicts nothing, so it
 //! only adds error; a component of the material lowers it.
 
@@ -84,8 +86,10 @@ impl DenoiseReport {
 
 /// Projects the texels of `maps` (one texture per LRF sample, all of one
 /// size) onto their leading principal components, as `how` says; `light[s]`
-/// tells which light sample s was taken under (any ids). Returns None for
-/// [`LrfDenoise::Off`] or no maps.
+/// tells which light sample s was taken under (any ids). Returns None and
+/// changes nothing for [`LrfDenoise::Off`], no maps, or an automatic rank
+/// that cannot be cross-validated (fewer than two lights or two texel
+/// columns).
 pub fn denoise_lrf(
     maps: &mut [Texture],
     light: &[usize],
@@ -98,7 +102,7 @@ pub fn denoise_lrf(
     let (k, cross_validation) = match how {
         LrfDenoise::Components(k) => (k, Vec::new()),
         _ => {
-            let cv = cross_validated_error(maps, light, MAX_COMPONENTS);
+            let cv = cross_validated_error(maps, light, MAX_COMPONENTS)?;
             let best = (0..cv.len())
                 .min_by(|&a, &b| cv[a].total_cmp(&cv[b]))
                 .unwrap_or(0);
@@ -138,8 +142,9 @@ pub fn denoise_lrf(
 }
 
 /// Held-out mean squared error per value of 0, 1, ..., up to `r`
-/// components (see the module docs), averaged over the four folds.
-pub fn cross_validated_error(maps: &[Texture], light: &[usize], r: usize) -> Vec<f64> {
+/// components (see the module docs), averaged over the four folds; None
+/// with fewer than two lights or two texel columns.
+pub fn cross_validated_error(maps: &[Texture], light: &[usize], r: usize) -> Option<Vec<f64>> {
     let (w, h) = (maps[0].width, maps[0].height);
     let half =
         |left: bool| -> Vec<usize> { (0..w * h).filter(|p| (p % w < w / 2) == left).collect() };
@@ -154,8 +159,8 @@ pub fn cross_validated_error(maps: &[Texture], light: &[usize], r: usize) -> Vec
     let parity =
         |even: bool| -> Vec<usize> { (0..maps.len()).filter(|&s| side(s) == even).collect() };
     let (texels, samples) = ([half(true), half(false)], [parity(true), parity(false)]);
-    if texels.iter().any(|t| t.len() < 2) || samples.iter().any(|s| s.is_empty()) {
-        return vec![0.0];
+    if texels.iter().any(|t| t.is_empty()) || samples.iter().any(|s| s.is_empty()) {
+        return None;
     }
     let folds: Vec<Vec<f64>> = [(0, 0), (0, 1), (1, 0), (1, 1)]
         .par_iter()
@@ -172,9 +177,11 @@ pub fn cross_validated_error(maps: &[Texture], light: &[usize], r: usize) -> Vec
         .collect();
     let kmax = folds.iter().map(|f| f.len()).min().unwrap_or(1);
     let values: f64 = folds.len() as f64;
-    (0..kmax)
-        .map(|k| folds.iter().map(|f| f[k]).sum::<f64>() / values)
-        .collect()
+    Some(
+        (0..kmax)
+            .map(|k| folds.iter().map(|f| f[k]).sum::<f64>() / values)
+            .collect(),
+    )
 }
 
 /// One fold: components of texels `ta` over samples `sa` predict samples
@@ -410,6 +417,9 @@ mod tests {
         assert_eq!(r.components, 0, "held-out errors {:?}", r.cross_validation);
         let mut same = pure.clone();
         assert!(denoise_lrf(&mut same, &own_lights(20), LrfDenoise::Off).is_none());
+        assert_eq!(same, pure);
+        // One light: nothing to cross-validate against, nothing changed.
+        assert!(denoise_lrf(&mut same, &[0; 20], LrfDenoise::Auto).is_none());
         assert_eq!(same, pure);
     }
 }

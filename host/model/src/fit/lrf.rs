@@ -108,6 +108,12 @@ pub(super) fn fit_lrf(
         })
         .collect();
     let report = denoise_lrf(&mut maps, &light, denoise);
+    if report.is_none() && denoise != LrfDenoise::Off && !maps.is_empty() {
+        notes.push(format!(
+            "LRF not denoised: the automatic rank needs two lights and two texel columns ({} lights, {ww} columns)",
+            lights.len()
+        ));
+    }
     let global = LampGlobalTerm::new(dipole, entrance, exiting, data.index.grid.texel_mm);
     maps.par_iter_mut()
         .zip(&samples)
