@@ -219,7 +219,7 @@ fn main() {
         let secs = t.elapsed().as_secs_f64();
         show(&name, mse(&maps), secs, &maps);
         if how == LrfDenoise::Auto {
-            println!("            {}", r.note());
+            println!("            {}", r.summary());
             println!(
                 "            spectrum {:?}",
                 r.spectrum

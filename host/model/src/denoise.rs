@@ -63,8 +63,8 @@ pub struct DenoiseReport {
 }
 
 impl DenoiseReport {
-    /// One line for the fit's notes.
-    pub fn note(&self) -> String {
+    /// One line for the fit's output and the report.
+    pub fn summary(&self) -> String {
         let [a, b, c] = self.noise_before;
         let [d, e, f] = self.noise_after;
         let how = if self.cross_validation.is_empty() {
@@ -77,7 +77,7 @@ impl DenoiseReport {
             )
         };
         format!(
-            "LRF denoised: {} of {} principal components kept ({how}); noise per texel {a:.3e}, {b:.3e}, {c:.3e} -> {d:.3e}, {e:.3e}, {f:.3e} /sr",
+            "Denoised: {} of {} principal components of the lamp response kept ({how}); noise per texel {a:.3e}, {b:.3e}, {c:.3e} -> {d:.3e}, {e:.3e}, {f:.3e} /sr",
             self.components,
             self.dims.min(self.texels),
         )

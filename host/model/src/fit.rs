@@ -159,9 +159,6 @@ pub fn fit_capture_with_progress(
         &mut notes,
         &step,
     )?;
-    if let Some(r) = &lrf_denoise {
-        notes.push(r.note());
-    }
     timings.lrf = t0.elapsed().as_secs_f64();
 
     let model = MaterialModel {

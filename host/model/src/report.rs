@@ -609,9 +609,17 @@ fn image_sections(
     if !lrf_all.is_empty() {
         let n = lrf_all.len().min(24);
         let scale = div_scale(&lrf_all);
+        let denoised = model
+            .diagnostics
+            .as_ref()
+            .and_then(|d| d.lrf_denoise.as_ref())
+            .map_or_else(
+                || " Not denoised.".to_string(),
+                |r| format!(" {}.", r.summary()),
+            );
         let _ = writeln!(
             html,
-            "<h2>Local reflectance function, first {n} of {} samples</h2>\n<p class=\"meta\">Mean of R, G and B, symmetric about 0 at the 99th percentile of |LRF| over all samples (values beyond it saturate).</p>\n<div class=\"row small\">",
+            "<h2>Local reflectance function, first {n} of {} samples</h2>\n<p class=\"meta\">Mean of R, G and B, symmetric about 0 at the 99th percentile of |LRF| over all samples (values beyond it saturate).{denoised}</p>\n<div class=\"row small\">",
             lrf_all.len()
         );
         for (k, m) in lrf_all.iter().take(n).enumerate() {

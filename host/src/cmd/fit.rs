@@ -244,6 +244,9 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<ExitCode> {
         for n in &d.notes {
             println!("note: {n}");
         }
+        if let Some(r) = &d.lrf_denoise {
+            println!("LRF: {}", r.summary());
+        }
     }
     println!(
         "{} views of f_v, {} LRF samples, {}x{} texels of {} mm",
