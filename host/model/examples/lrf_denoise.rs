@@ -18,7 +18,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use qhm_model::MaterialModel;
-use qhm_model::denoise::{LrfDenoise, denoise_lrf, texel_noise};
+use qhm_model::denoise::{LrfDenoise, denoise_lrf, light_ids, texel_noise};
 use qhm_model::fit::LampGlobalTerm;
 use qhm_model::model::Texture;
 
@@ -111,15 +111,13 @@ fn main() {
         a.lrf.samples.len(),
         (i1 - i0) * (j1 - j0)
     );
-    // Registration: the correlation of the two sample-mean maps at shifts
-    // of B by a few texels peaks at (0, 0) when the windows line up.
+    // Registration: the correlation of the two models' f_v, averaged over
+    // views, at shifts of B by a few texels peaks at (0, 0) when the
+    // windows line up.
     let mean_map = |m: &MaterialModel, i: i64, j: i64| -> f64 {
-        let maps = if std::env::var_os("FV").is_some() {
-            &m.exiting.maps
-        } else {
-            &m.lrf.maps
-        };
-        maps.iter()
+        m.exiting
+            .maps
+            .iter()
             .map(|t| t.get(i as usize, j as usize).iter().sum::<f32>() as f64)
             .sum()
     };
@@ -144,7 +142,7 @@ fn main() {
         let vy: f64 = pairs.iter().map(|p| (p.1 - my).powi(2)).sum();
         let r = cov / (vx * vy).sqrt();
         if (di, dj) == (0, 0) {
-            println!("correlation of the sample-mean maps: {r:.3} at B's shift (0, 0)");
+            println!("correlation of the view-mean f_v maps: {r:.3} at B's shift (0, 0)");
         }
         if r > best.0 {
             best = (r, di, dj);
@@ -199,19 +197,7 @@ fn main() {
         });
         options.push((format!("k = {k}"), LrfDenoise::Components(k)));
     }
-    let mut lights: Vec<[f32; 3]> = Vec::new();
-    let light: Vec<usize> = a
-        .lrf
-        .samples
-        .iter()
-        .map(|s| match lights.iter().position(|l| *l == s.light) {
-            Some(i) => i,
-            None => {
-                lights.push(s.light);
-                lights.len() - 1
-            }
-        })
-        .collect();
+    let light = light_ids(&a.lrf.samples);
     for (name, how) in options {
         let mut maps = za.clone();
         let t = Instant::now();
@@ -220,13 +206,6 @@ fn main() {
         show(&name, mse(&maps), secs, &maps);
         if how == LrfDenoise::Auto {
             println!("            {}", r.summary());
-            println!(
-                "            spectrum {:?}",
-                r.spectrum
-                    .iter()
-                    .map(|v| (v * 1000.0).round() / 1000.0)
-                    .collect::<Vec<_>>()
-            );
         }
     }
 }

@@ -23,7 +23,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::model::Texture;
+use crate::model::{LrfSample, Texture};
 use crate::pca::{TexelMatrix, principal_components};
 
 /// How many principal components the fit keeps of the LRF.
@@ -82,6 +82,22 @@ impl DenoiseReport {
             self.dims.min(self.texels),
         )
     }
+}
+
+/// Which light each sample was taken under: ids in order of first
+/// appearance (samples of one lamp position share its light direction).
+pub fn light_ids(samples: &[LrfSample]) -> Vec<usize> {
+    let mut lights: Vec<[f32; 3]> = Vec::new();
+    samples
+        .iter()
+        .map(|s| match lights.iter().position(|l| *l == s.light) {
+            Some(i) => i,
+            None => {
+                lights.push(s.light);
+                lights.len() - 1
+            }
+        })
+        .collect()
 }
 
 /// Projects the texels of `maps` (one texture per LRF sample, all of one
@@ -304,18 +320,7 @@ mod tests {
         signal: f64,
         noise: f64,
     ) -> (Vec<Texture>, Vec<Texture>) {
-        let mut rng = 99u64 ^ noise.to_bits();
-        let mut gauss = move || {
-            (0..12)
-                .map(|_| {
-                    rng = rng
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    (rng >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        };
+        let mut gauss = crate::pca::tests::gaussian(99u64 ^ noise.to_bits());
         let pattern = |k: usize, i: usize, j: usize| -> f64 {
             let (x, y) = (i as f64, j as f64);
             match k {

@@ -285,8 +285,24 @@ fn symmetric_eigen(mut a: Vec<Vec<f64>>) -> (Vec<f64>, Vec<Vec<f64>>) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// Deterministic unit-variance noise: a sum of 12 uniforms less 6.
+    pub(crate) fn gaussian(seed: u64) -> impl FnMut() -> f64 {
+        let mut rng = seed;
+        move || {
+            (0..12)
+                .map(|_| {
+                    rng = rng
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (rng >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .sum::<f64>()
+                - 6.0
+        }
+    }
 
     #[test]
     fn jacobi_diagonalises_a_symmetric_matrix() {
@@ -317,19 +333,7 @@ mod tests {
             .collect();
         orthonormalise(&mut dirs);
         let sd = [3.0, 2.0, 1.0];
-        let mut rng = 12345u64;
-        let mut gauss = || {
-            // Sum of 12 uniforms less 6: unit variance, deterministic.
-            (0..12)
-                .map(|_| {
-                    rng = rng
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    (rng >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        };
+        let mut gauss = gaussian(12345);
         let noise = 0.01;
         let rows: Vec<Vec<f64>> = (0..n)
             .map(|_| {

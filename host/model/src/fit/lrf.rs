@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use super::stripes::f32v;
 use crate::ModelError;
-use crate::denoise::{DenoiseReport, LrfDenoise, denoise_lrf};
+use crate::denoise::{DenoiseReport, LrfDenoise, denoise_lrf, light_ids};
 use crate::fresnel::normal_transmittance;
 use crate::model::{EntranceFunction, ExitingFunction, LocalReflectance, LrfSample, Texture};
 use crate::rectified::Rectified;
@@ -96,22 +96,12 @@ pub(super) fn fit_lrf(
             "LRF: {nan} texel-channels were not valid in the lamp images; set to 0"
         ));
     }
-    let mut lights: Vec<[f32; 3]> = Vec::new();
-    let light: Vec<usize> = samples
-        .iter()
-        .map(|s| match lights.iter().position(|l| *l == s.light) {
-            Some(i) => i,
-            None => {
-                lights.push(s.light);
-                lights.len() - 1
-            }
-        })
-        .collect();
+    let light = light_ids(&samples);
     let report = denoise_lrf(&mut maps, &light, denoise);
     if report.is_none() && denoise != LrfDenoise::Off && !maps.is_empty() {
         notes.push(format!(
             "LRF not denoised: the automatic rank needs two lights and two texel columns ({} lights, {ww} columns)",
-            lights.len()
+            light.iter().max().map_or(0, |m| m + 1)
         ));
     }
     let global = LampGlobalTerm::new(dipole, entrance, exiting, data.index.grid.texel_mm);
