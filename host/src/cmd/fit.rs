@@ -165,8 +165,9 @@ pub struct FitArgs {
     /// Compress the LRF to this many PCA components (default: uncompressed).
     #[arg(long)]
     pub lrf_components: Option<usize>,
-    /// Denoise the LRF by keeping its principal components above the
-    /// noise (`auto`), exactly N of them, or not at all (`off`).
+    /// Denoise the LRF: keep the principal components of the lamp images
+    /// that cross-validation finds above the noise (`auto`), exactly N of
+    /// them, or none of this (`off`: the LRF as measured).
     #[arg(long, default_value = "auto", value_parser = parse_denoise)]
     pub lrf_denoise: LrfDenoise,
 }
