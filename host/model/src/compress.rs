@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::ModelError;
 use crate::exrio::{read_rgb, write_rgb};
 use crate::model::Texture;
-use crate::pca::{TexelMatrix, principal_components};
+use crate::pca::{TexelMatrix, principal_components, to_f32};
 
 /// A PCA-coded LRF.
 #[derive(Clone, Debug, PartialEq)]
@@ -37,11 +37,7 @@ impl Pca {
             height: maps[0].height,
             samples: maps.len(),
             mean: x.mean.iter().map(|&m| m as f32).collect(),
-            basis: pc
-                .basis
-                .iter()
-                .map(|b| b.iter().map(|&v| v as f32).collect())
-                .collect(),
+            basis: to_f32(&pc.basis),
             coeffs: pc.coeffs.chunks(k.max(1)).map(|c| c.to_vec()).collect(),
         }
     }

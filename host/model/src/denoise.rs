@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::model::{LrfSample, Texture};
-use crate::pca::{TexelMatrix, principal_components};
+use crate::pca::{TexelMatrix, principal_components, to_f32};
 
 /// How many principal components the fit keeps of the LRF.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -235,11 +235,6 @@ fn held_out_error(
     // The held-out texels' coefficients, from their values on `sa` less
     // the fitting texels' mean.
     let xb = TexelMatrix::select(maps, tb, sa);
-    let basis: Vec<Vec<f32>> = pc
-        .basis
-        .iter()
-        .map(|b| b.iter().map(|&v| v as f32).collect())
-        .collect();
     let offset: Vec<f64> = pc
         .basis
         .iter()
@@ -250,7 +245,7 @@ fn held_out_error(
                 .sum()
         })
         .collect();
-    let cb = xb.project(&basis);
+    let cb = xb.project(&to_f32(&pc.basis));
     let yb = TexelMatrix::select(maps, tb, sb);
     let mut err = vec![0.0f64; k + 1];
     for p in 0..yb.n {

@@ -180,7 +180,8 @@ pub(crate) fn principal_components(x: &TexelMatrix, r: usize) -> Components {
 /// the leading directions' variances settle within 1e-3 in a few).
 const ITERATIONS: usize = 6;
 
-fn to_f32(v: &[Vec<f64>]) -> Vec<Vec<f32>> {
+/// Vectors as f32, for [`TexelMatrix::project`].
+pub(crate) fn to_f32(v: &[Vec<f64>]) -> Vec<Vec<f32>> {
     v.iter()
         .map(|b| b.iter().map(|&x| x as f32).collect())
         .collect()
@@ -204,13 +205,13 @@ fn dot32(a: &[f32], b: &[f32]) -> f32 {
     acc.iter().sum::<f32>() + tail
 }
 
-pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// Modified Gram-Schmidt; a vanishing vector is replaced by a unit axis
 /// orthogonal to the others so the basis keeps its size.
-pub(crate) fn orthonormalise(v: &mut [Vec<f64>]) {
+fn orthonormalise(v: &mut [Vec<f64>]) {
     for j in 0..v.len() {
         for attempt in 0..=v[j].len() {
             let (done, rest) = v.split_at_mut(j);

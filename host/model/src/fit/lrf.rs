@@ -32,23 +32,16 @@ pub(super) fn fit_lrf(
 ) -> Result<(LocalReflectance, Option<DenoiseReport>), ModelError> {
     let [i0, j0, ww, wh] = window.map(|x| x as usize);
     // The lamp images per unit irradiance over the window.
-    let lamps: Vec<(LrfSample, Texture, usize)> = data
+    let (samples, mut maps): (Vec<LrfSample>, Vec<Texture>) = data
         .index
         .lamp
         .par_iter()
         .map(|lamp| -> Result<_, ModelError> {
             let img = data.read_image(&lamp.file)?;
-            let mut nan = 0;
             let out = (0..ww * wh)
                 .map(|p| {
                     let l = img.get(i0 + p % ww, j0 + p / ww);
-                    std::array::from_fn(|c| {
-                        if !l[c].is_finite() {
-                            nan += 1;
-                            return f32::NAN;
-                        }
-                        (l[c] as f64 / lamp.irradiance[c]) as f32
-                    })
+                    std::array::from_fn(|c| (l[c] as f64 / lamp.irradiance[c]) as f32)
                 })
                 .collect();
             step();
@@ -61,12 +54,11 @@ pub(super) fn fit_lrf(
                 height: wh,
                 data: out,
             };
-            Ok((sample, texture, nan))
+            Ok((sample, texture))
         })
-        .collect::<Result<_, _>>()?;
-    let nan: usize = lamps.iter().map(|x| x.2).sum();
-    let (samples, mut maps): (Vec<LrfSample>, Vec<Texture>) =
-        lamps.into_iter().map(|x| (x.0, x.1)).unzip();
+        .collect::<Result<Vec<_>, _>>()?
+        .into_iter()
+        .unzip();
     // An invalid texel-channel takes the sample's mean over the valid ones
     // for the denoising (a neutral value for the components), and 0 in the
     // LRF afterwards.
@@ -74,6 +66,7 @@ pub(super) fn fit_lrf(
         .iter()
         .map(|m| m.data.iter().map(|v| v.map(|x| !x.is_finite())).collect())
         .collect();
+    let nan: usize = invalid.iter().flatten().flatten().filter(|&&b| b).count();
     if nan > 0 {
         for m in &mut maps {
             let mean: [f32; 3] = std::array::from_fn(|c| {
