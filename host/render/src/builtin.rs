@@ -110,7 +110,12 @@ pub fn teapot(scale: f32, n: usize) -> Result<Mesh, MeshError> {
         for i in 0..=n {
             for j in 0..=n {
                 let (u, v) = (i as f32 / n as f32, j as f32 / n as f32);
-                let (p, dpdu, dpdv) = bezier_patch(&cp, u, v);
+                let (p, _, _) = bezier_patch(&cp, u, v);
+                // A patch whose edge collapses to a point (the lid's and the
+                // bottom's poles) has no derivative there: its normal is the
+                // limit from just inside.
+                let inside = |t: f32| t.clamp(1e-3, 1.0 - 1e-3);
+                let (_, dpdu, dpdv) = bezier_patch(&cp, inside(u), inside(v));
                 m.positions.push(p.to_array());
                 normals.push((-dpdu.cross(dpdv)).normalize_or_zero().to_array());
             }

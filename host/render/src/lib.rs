@@ -39,6 +39,7 @@ pub mod prepare;
 pub mod render;
 pub mod scene;
 pub mod settings;
+pub mod tangent_field;
 mod teapot_data;
 pub mod texture_synthesis;
 

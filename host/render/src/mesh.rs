@@ -21,8 +21,9 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     /// Per-triangle-corner texture coordinates, in mm along the surface.
     pub uvs: Vec<[Vec2; 3]>,
-    /// Per-triangle unit tangent along +u (texture x) on the surface.
-    pub tangents: Vec<Vec3>,
+    /// For each vertex, the first vertex at its position (itself if none
+    /// came before): joins split copies at UV seams, patch borders, creases.
+    pub weld: Vec<u32>,
     /// Faces dropped at load because their area was zero.
     pub dropped_degenerate: usize,
 }
@@ -135,7 +136,7 @@ impl Mesh {
         Ok(self)
     }
 
-    /// Validates raw data and derives normals, UVs and tangents.
+    /// Validates raw data and derives normals and UVs.
     /// `uv_scale_mm`: mm per file UV unit; `None` means the bounding-box
     /// diagonal (one UV unit spans the object).
     pub fn build(input: MeshInput, uv_scale_mm: Option<f32>) -> Result<Mesh, MeshError> {
@@ -244,17 +245,12 @@ impl Mesh {
                 .map(|t| box_projection(t.map(|i| positions[i as usize])))
                 .collect(),
         };
-        let tangents = triangles
-            .iter()
-            .zip(&uvs)
-            .map(|(t, uv)| triangle_tangent(t.map(|i| positions[i as usize]), *uv))
-            .collect();
         Ok(Mesh {
             positions,
             normals,
             triangles,
             uvs,
-            tangents,
+            weld,
             dropped_degenerate: degenerate,
         })
     }
@@ -303,6 +299,20 @@ impl Mesh {
             }
             _ => ng,
         }
+    }
+
+    /// Barycentrics (b1, b2) of the point of triangle `t`'s plane nearest
+    /// to `p`.
+    pub fn barycentric(&self, t: usize, p: Vec3) -> (f32, f32) {
+        let [a, b, c] = self.corners(t);
+        let (e1, e2, d) = (b - a, c - a, p - a);
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (d1, d2) = (d.dot(e1), d.dot(e2));
+        let det = d11 * d22 - d12 * d12;
+        if det.abs() <= f32::MIN_POSITIVE {
+            return (1.0 / 3.0, 1.0 / 3.0);
+        }
+        ((d22 * d1 - d12 * d2) / det, (d11 * d2 - d12 * d1) / det)
     }
 
     /// Surface texture coordinate (mm) at barycentrics (b1, b2).
@@ -390,20 +400,6 @@ fn box_projection(p: [Vec3; 3]) -> [Vec2; 3] {
     })
 }
 
-/// dp/du of a triangle from its UV mapping; any in-plane direction when the
-/// mapping is degenerate.
-fn triangle_tangent(p: [Vec3; 3], uv: [Vec2; 3]) -> Vec3 {
-    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
-    let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
-    let det = d1.x * d2.y - d1.y * d2.x;
-    let t = if det.abs() > 1e-12 {
-        (e1 * d2.y - e2 * d1.y) / det
-    } else {
-        e1
-    };
-    t.normalize_or_zero()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -417,12 +413,16 @@ mod tests {
     }
 
     #[test]
-    fn quad_gets_normals_uvs_and_tangents() {
+    fn quad_gets_normals_and_uvs() {
         let m = Mesh::build(quad(), None).unwrap();
         assert_eq!(m.normals[0], Vec3::Z);
         assert!((m.total_area() - 1.0).abs() < 1e-6);
-        assert!((m.tangents[0] - Vec3::X).length() < 1e-6);
         assert_eq!(m.uv(0, 1.0, 0.0), Vec2::new(1.0, 0.0));
+        let (b1, b2) = m.barycentric(0, Vec3::new(0.75, 0.25, 0.3));
+        assert!(
+            (b1 - 0.5).abs() < 1e-6 && (b2 - 0.25).abs() < 1e-6,
+            "{b1} {b2}"
+        );
     }
 
     #[test]

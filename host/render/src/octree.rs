@@ -1160,6 +1160,7 @@ mod tests {
             pos: vec![Vec3::ZERO],
             normal: vec![Vec3::Z],
             tri: vec![0],
+            tangent: Vec::new(),
             area: vec![2.0],
             irradiance: vec![Vec3::ONE],
             entry: Vec::new(),

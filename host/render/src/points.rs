@@ -32,6 +32,9 @@ pub struct SurfaceSamples {
     /// Geometric normal of the triangle each point lies on.
     pub normal: Vec<Vec3>,
     pub tri: Vec<u32>,
+    /// The texture's +u direction at each point ([`crate::tangent_field`]);
+    /// empty = any direction.
+    pub tangent: Vec<Vec3>,
     /// Area each point stands for, mm^2 (total area / count).
     pub area: Vec<f32>,
     /// Irradiance (linear RGB), already attenuated by f.
@@ -199,7 +202,7 @@ pub fn compute_irradiance<M: Material>(
     let SurfaceSamples {
         pos,
         normal,
-        tri,
+        tangent,
         irradiance,
         entry,
         ..
@@ -208,8 +211,8 @@ pub fn compute_irradiance<M: Material>(
     let lit: Vec<(Vec3, Vec3)> = (0..pos.len())
         .into_par_iter()
         .map(|i| {
-            let tangent = scene.mesh.tangents[tri[i] as usize];
-            irradiance_at(scene, pos[i], normal[i], tangent, &entrance, &env_set, eta)
+            let t = tangent.get(i).copied().unwrap_or(Vec3::ZERO);
+            irradiance_at(scene, pos[i], normal[i], t, &entrance, &env_set, eta)
         })
         .collect();
     (*irradiance, *entry) = lit.into_iter().unzip();

@@ -1,7 +1,8 @@
 //! Pass 1 of the renderer, everything before the first camera ray: the
 //! surface samples ([`crate::points`]), their irradiance through the
 //! mode's entrance, the octree over them ([`crate::octree`]) and its R_d
-//! table, and the synthesized texture ([`crate::texture_synthesis`]).
+//! table, the tangent field ([`crate::tangent_field`]) and the texture
+//! synthesized on the surface ([`crate::texture_synthesis`]).
 //! [`Prepared`] keeps it for the pixel pass ([`crate::render`]) and for
 //! relighting.
 
@@ -18,14 +19,17 @@ use crate::octree::{DipoleTree, RdTable};
 use crate::points::{self, Entrance, SurfaceSamples};
 use crate::scene::Scene;
 use crate::settings::{RenderSettings, RenderStats};
-use crate::texture_synthesis::{Features, SynthSettings, SynthTexture};
+use crate::tangent_field::TangentField;
+use crate::texture_synthesis::{Features, SurfaceTexture, SynthSettings, TexturePlacement};
 
 /// Pass-1 results, reusable across renders of the same scene and lights.
 pub struct Prepared {
     pub samples: SurfaceSamples,
     pub tree: DipoleTree,
     pub rd: RdTable,
-    pub texture: SynthTexture,
+    /// The texture's +u direction on the surface.
+    pub field: TangentField,
+    pub texture: TexturePlacement,
     /// The radius left out of `rd` (depends on the mode, not the lights).
     pub(crate) hole: f32,
     /// `rd`'s near field and geometry factor, as in the settings.
@@ -61,11 +65,44 @@ pub fn prepare<M: Material>(
         return Err(RenderError::Material(format!("texel size {texel_mm} mm")));
     }
     let t = Instant::now();
+    let field = TangentField::new(&scene.mesh);
+    let (tw, th) = material.texture_size();
+    let texture = if settings.synthesis && tw >= 8 && th >= 8 {
+        let f = Features::of_material(material);
+        let s = SynthSettings {
+            seed: settings.seed,
+            ..settings.synth
+        };
+        TexturePlacement::Surface(SurfaceTexture::synthesize(
+            &scene.mesh,
+            &field,
+            &f,
+            texel_mm,
+            &s,
+        ))
+    } else {
+        TexturePlacement::Tiled {
+            width: tw.max(1) as usize,
+            height: th.max(1) as usize,
+            texel_mm,
+        }
+    };
+    stats.secs_synthesis = t.elapsed().as_secs_f64();
+    let t = Instant::now();
     let mut samples = if settings.mode.has_global() {
         points::poisson_disk(&scene.mesh, settings.surface_samples, settings.seed)
     } else {
         SurfaceSamples::default()
     };
+    samples.tangent = samples
+        .pos
+        .iter()
+        .zip(&samples.tri)
+        .map(|(p, &t)| {
+            let (b1, b2) = scene.mesh.barycentric(t as usize, *p);
+            field.at(&scene.mesh, t as usize, b1, b2)
+        })
+        .collect();
     stats.secs_samples = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let entry_shape = (settings.mode.has_global()
@@ -90,23 +127,11 @@ pub fn prepare<M: Material>(
         settings.geometry,
     );
     stats.secs_tree += t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let (tw, th) = material.texture_size();
-    let texture = if settings.synthesis && tw >= 8 && th >= 8 {
-        let f = Features::of_material(material);
-        let s = SynthSettings {
-            seed: settings.seed,
-            ..settings.synth
-        };
-        SynthTexture::quilt(&f, texel_mm, &s)
-    } else {
-        SynthTexture::tiled(tw as usize, th as usize, texel_mm)
-    };
-    stats.secs_synthesis = t.elapsed().as_secs_f64();
     Ok(Prepared {
         samples,
         tree,
         rd,
+        field,
         texture,
         hole,
         near_field: settings.near_field,

@@ -243,11 +243,11 @@ fn radiance<M: Material>(
         ng = -ng;
         ns = -ns;
     }
-    let fr = frame(ns, mesh.tangents[t]);
+    let fr = frame(ns, prep.field.at(mesh, t, hit.b1, hit.b2));
     let mut wo_l = to_local(&fr, wo);
     wo_l.z = wo_l.z.max(1e-3);
     let wo_l = wo_l.normalize();
-    let uv = prep.texture.lookup(mesh.uv(t, hit.b1, hit.b2));
+    let tex = prep.texture.lookup(mesh, t, hit.b1, hit.b2, p, ns);
     let origin = p + ng * scene.eps;
     let mut l = Vec3::ZERO;
 
@@ -265,7 +265,7 @@ fn radiance<M: Material>(
             {
                 return Vec3::ZERO;
             }
-            Vec3::from(material.lrf(uv, wi_l.to_array(), wo_l.to_array())) * e
+            tex.blend(|uv| material.lrf(uv, wi_l.to_array(), wo_l.to_array())) * e
         };
         for light in &scene.lights {
             let s = light.sample(p);
@@ -329,7 +329,7 @@ fn radiance<M: Material>(
             );
             Vec3::splat((1.0 / per_radiance) as f32)
         } else {
-            let fv = Vec3::from(material.exiting(uv, wo_l.to_array()));
+            let fv = tex.blend(|uv| material.exiting(uv, wo_l.to_array()));
             match &prep.exit_shape {
                 Some(shape) => fv * shape.eval(wo_l.z) / PI,
                 None => fv / PI,

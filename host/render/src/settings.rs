@@ -75,7 +75,8 @@ pub struct RenderSettings {
     /// ([`crate::octree::RdTable::with_geometry`]).
     pub geometry: bool,
     pub seed: u64,
-    /// Quilt the material texture (else tile it periodically).
+    /// Synthesize the material texture on the surface (else tile it over
+    /// the mesh's texture coordinates).
     pub synthesis: bool,
     pub synth: SynthSettings,
     /// Show a progress bar on stderr.

@@ -1,24 +1,34 @@
-//! Texture synthesis of the material texture T(x, y) onto the surface
-//! (paper section 5). Every texel of T holds the LRF and f_v of one point of
-//! the sample, so the synthesis works on *texel coordinates*, never on
-//! colours: the output is an index map from output texels to source texels,
-//! and all shading looks f_v and the LRF up through it. The look therefore
-//! stays consistent under every light and view (the idea of Liu et al. 2004).
+//! Texture synthesis of the material texture T(x, y) on the surface
+//! (paper section 5, after Tong et al. 2002 and Liu et al. 2004). Every
+//! texel of T holds the LRF and f_v of one point of the sample, so the
+//! synthesis works on *texel coordinates*, never on colours: every point
+//! of a dense, even set on the surface gets a source coordinate, and all
+//! shading looks f_v and the LRF up through it. The look therefore stays
+//! consistent under every light and view.
 //!
-//! Method: image quilting (Efros & Freeman 2001) on a torus. Blocks of the
-//! source are laid in raster order with overlaps; each block is chosen among
-//! random candidates by the squared error of per-texel *feature vectors*
-//! (f_v at five views and the LRF at three light directions, each dimension
-//! normalised by its spread) in the overlaps with blocks already placed, and
-//! pasted along minimum-error boundary cuts. The last row and column also
-//! cut against the first ones, so the synthesized texture tiles seamlessly.
+//! Method: points one texel apart (Poisson disk) carry a frame from the
+//! smooth tangent field ([`crate::tangent_field`]), so no projection axis
+//! switches and nothing wraps. In breadth-first order over the surface,
+//! each point takes the source coordinate that best continues the points
+//! already placed around it: the candidates are the coordinates that
+//! continue each neighbour's patch, and those of the source texels most
+//! like the neighbour's (k-coherence, Tong et al. 2002); the cost is the
+//! squared difference of per-texel *feature vectors* (f_v at five views and
+//! the LRF at three lights, each normalised by its spread) over the
+//! neighbourhood. A shading point takes its coordinate from the nearby
+//! points, each extrapolated along its own frame; where those disagree (a
+//! cut between patches) the material is evaluated at each and the results
+//! are blended in output space, never across the source.
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use crate::material::Material;
+use crate::mesh::Mesh;
+use crate::points::{frame, poisson_disk};
+use crate::tangent_field::TangentField;
 
 /// Per-texel feature vectors of a source texture.
 #[derive(Clone, Debug)]
@@ -33,6 +43,34 @@ impl Features {
     fn at(&self, x: usize, y: usize) -> &[f32] {
         let k = (y * self.width + x) * self.dim;
         &self.data[k..k + self.dim]
+    }
+
+    /// The texel holding a continuous coordinate (texel units, centres at
+    /// i + 0.5), clamped to the texture.
+    fn texel(&self, c: Vec2) -> (usize, usize) {
+        (
+            (c.x.max(0.0) as usize).min(self.width - 1),
+            (c.y.max(0.0) as usize).min(self.height - 1),
+        )
+    }
+
+    /// Bilinear features at a continuous coordinate (clamped), into `out`.
+    fn bilinear(&self, c: Vec2, out: &mut [f32]) {
+        let x = (c.x - 0.5).clamp(0.0, (self.width - 1) as f32);
+        let y = (c.y - 0.5).clamp(0.0, (self.height - 1) as f32);
+        let (x0, y0) = (x as usize, y as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let (a, b, c, d) = (
+            self.at(x0, y0),
+            self.at(x1, y0),
+            self.at(x0, y1),
+            self.at(x1, y1),
+        );
+        for k in 0..self.dim {
+            out[k] =
+                (a[k] * (1.0 - fx) + b[k] * fx) * (1.0 - fy) + (c[k] * (1.0 - fx) + d[k] * fx) * fy;
+        }
     }
 
     /// Feature vectors of a material's texture: f_v at five views and the
@@ -100,322 +138,706 @@ fn normalise(data: &mut [f32], dim: usize) {
     }
 }
 
-/// Quilting parameters.
+/// Synthesis parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct SynthSettings {
-    /// Block edge in texels (clamped to the source size).
-    pub block: usize,
-    /// Overlap in texels.
-    pub overlap: usize,
-    /// Output size as a multiple of the source size (per axis).
-    pub scale: usize,
-    /// Random candidate blocks tried per placement.
-    pub candidates: usize,
-    /// Accept candidates within (1 + tolerance) of the best error.
-    pub tolerance: f32,
+    /// Radius of the matched neighbourhood, texels.
+    pub neighbourhood: f32,
+    /// Similar source texels tried per neighbour (k-coherence).
+    pub similar: usize,
+    /// Passes after the first that revisit every point with its whole
+    /// neighbourhood placed.
+    pub refine: usize,
+    /// Most surface points synthesized; beyond it they are spaced wider
+    /// than a texel (a very large object).
+    pub max_points: usize,
     pub seed: u64,
 }
 
 impl Default for SynthSettings {
     fn default() -> Self {
         SynthSettings {
-            block: 24,
-            overlap: 6,
-            scale: 4,
-            candidates: 300,
-            tolerance: 0.1,
+            neighbourhood: 2.5,
+            similar: 6,
+            refine: 2,
+            max_points: 2_000_000,
             seed: 1,
         }
     }
 }
 
-/// The synthesized texture: a seamless, periodic map from output texels to
-/// source texels, and the texel pitch on the surface.
+/// A uniform grid over points (linked lists per cell).
 #[derive(Clone, Debug)]
-pub struct SynthTexture {
-    pub width: usize,
-    pub height: usize,
-    pub src_width: usize,
-    pub src_height: usize,
-    /// Source texel (x, y) of every output texel.
-    pub map: Vec<[u32; 2]>,
-    pub texel_mm: f32,
+struct PointGrid {
+    lo: Vec3,
+    cell: f32,
+    dims: [usize; 3],
+    heads: Vec<u32>,
+    next: Vec<u32>,
 }
 
-impl SynthTexture {
-    /// Plain periodic tiling of the source (no synthesis).
-    pub fn tiled(src_width: usize, src_height: usize, texel_mm: f32) -> SynthTexture {
-        let (w, h) = (src_width.max(1), src_height.max(1));
-        SynthTexture {
-            width: w,
-            height: h,
-            src_width: w,
-            src_height: h,
-            map: (0..w * h)
-                .map(|k| [(k % w) as u32, (k / w) as u32])
-                .collect(),
-            texel_mm,
+impl PointGrid {
+    fn new(points: &[Vec3], cell: f32) -> PointGrid {
+        let (lo, hi) = crate::mesh::bounds(points);
+        let lo = if points.is_empty() { Vec3::ZERO } else { lo };
+        let ext = if points.is_empty() {
+            Vec3::ZERO
+        } else {
+            hi - lo
+        };
+        // At most ~8M cells, coarser for a sparse, large box.
+        let cell = cell
+            .max((ext.x * ext.y * ext.z / 8.0e6).cbrt())
+            .max(f32::MIN_POSITIVE);
+        let d = (ext / cell).floor().as_uvec3() + 1;
+        let dims = [d.x as usize, d.y as usize, d.z as usize];
+        let mut g = PointGrid {
+            lo,
+            cell,
+            dims,
+            heads: vec![u32::MAX; dims[0] * dims[1] * dims[2]],
+            next: vec![u32::MAX; points.len()],
+        };
+        for (i, p) in points.iter().enumerate() {
+            let k = g.index(g.cell_of(*p));
+            g.next[i] = g.heads[k];
+            g.heads[k] = i as u32;
         }
+        g
     }
 
-    /// Image quilting on a torus over the feature vectors.
-    pub fn quilt(f: &Features, texel_mm: f32, s: &SynthSettings) -> SynthTexture {
-        let b = s.block.min(f.width).min(f.height);
-        let o = s.overlap.min(b / 3);
-        if b < 4 || o < 1 {
-            return SynthTexture::tiled(f.width, f.height, texel_mm);
-        }
-        let step = b - o;
-        let nx = (f.width * s.scale).div_ceil(step).max(2);
-        let ny = (f.height * s.scale).div_ceil(step).max(2);
-        let (w, h) = (nx * step, ny * step);
-        let mut map: Vec<Option<[u32; 2]>> = vec![None; w * h];
-        let mut rng = Pcg64Mcg::seed_from_u64(s.seed);
-        let dist =
-            |a: &[f32], c: &[f32]| a.iter().zip(c).map(|(x, y)| (x - y) * (x - y)).sum::<f32>();
-        for by in 0..ny {
-            for bx in 0..nx {
-                let (x0, y0) = (bx * step, by * step);
-                let at = |i: usize, j: usize| ((y0 + j) % h) * w + (x0 + i) % w;
-                // Candidate sources: random block origins fully inside the source.
-                let cands: Vec<[usize; 2]> = (0..s.candidates.max(1))
-                    .map(|_| {
-                        [
-                            rng.random_range(0..=f.width - b),
-                            rng.random_range(0..=f.height - b),
-                        ]
-                    })
-                    .collect();
-                let errors: Vec<f32> = cands
-                    .par_iter()
-                    .map(|&[sx, sy]| {
-                        let mut e = 0.0;
-                        for j in 0..b {
-                            for i in 0..b {
-                                if let Some([ox, oy]) = map[at(i, j)] {
-                                    e += dist(f.at(sx + i, sy + j), f.at(ox as usize, oy as usize));
-                                }
-                            }
-                        }
-                        e
-                    })
-                    .collect();
-                let best = errors.iter().cloned().fold(f32::INFINITY, f32::min);
-                let ok: Vec<usize> = (0..cands.len())
-                    .filter(|&k| errors[k] <= best * (1.0 + s.tolerance) + 1e-9)
-                    .collect();
-                let [sx, sy] = cands[ok[rng.random_range(0..ok.len())]];
-                // Overlap error surface of the chosen block.
-                let err = |i: usize, j: usize| match map[at(i, j)] {
-                    Some([ox, oy]) => dist(f.at(sx + i, sy + j), f.at(ox as usize, oy as usize)),
-                    None => 0.0,
-                };
-                let written = |i: usize, j: usize| map[at(i, j)].is_some();
-                let mut keep_old = vec![false; b * b];
-                // Left and right strips: vertical cuts; top and bottom: horizontal.
-                let sides: [(bool, bool, bool); 4] = [
-                    (true, false, (0..b).any(|j| written(0, j))),
-                    (true, true, (0..b).any(|j| written(b - 1, j))),
-                    (false, false, (0..b).any(|i| written(i, 0))),
-                    (false, true, (0..b).any(|i| written(i, b - 1))),
-                ];
-                for (vertical, far, active) in sides {
-                    if !active {
-                        continue;
-                    }
-                    // Strip coordinates: `a` runs along the cut, `c` across it (0..o).
-                    let px = |a: usize, c: usize| {
-                        let c = if far { b - o + c } else { c };
-                        if vertical { (c, a) } else { (a, c) }
-                    };
-                    let cut = min_cut(b, o, |a, c| {
-                        let (i, j) = px(a, c);
-                        err(i, j)
-                    });
-                    for a in 0..b {
-                        for c in 0..o {
-                            // Old pixels stay on the outer side of the cut.
-                            let old_side = if far { c > cut[a] } else { c < cut[a] };
-                            if old_side {
-                                let (i, j) = px(a, c);
-                                keep_old[j * b + i] = true;
-                            }
-                        }
-                    }
-                }
-                for j in 0..b {
-                    for i in 0..b {
-                        let k = at(i, j);
-                        if map[k].is_none() || !keep_old[j * b + i] {
-                            map[k] = Some([(sx + i) as u32, (sy + j) as u32]);
-                        }
-                    }
-                }
-            }
-        }
-        SynthTexture {
-            width: w,
-            height: h,
-            src_width: f.width,
-            src_height: f.height,
-            map: map.into_iter().map(|m| m.unwrap_or([0, 0])).collect(),
-            texel_mm,
-        }
-    }
-
-    /// Source texture coordinate in [0, 1)^2 for a surface coordinate in mm.
-    pub fn lookup(&self, uv_mm: Vec2) -> [f32; 2] {
-        let t = uv_mm / self.texel_mm;
-        let (fx, fy) = (
-            t.x.rem_euclid(self.width as f32),
-            t.y.rem_euclid(self.height as f32),
-        );
-        let (x, y) = (
-            (fx as usize).min(self.width - 1),
-            (fy as usize).min(self.height - 1),
-        );
-        let [sx, sy] = self.map[y * self.width + x];
+    fn cell_of(&self, p: Vec3) -> [usize; 3] {
+        let c = ((p - self.lo) / self.cell).floor().max(Vec3::ZERO);
         [
-            ((sx as f32 + fx.fract()) / self.src_width as f32).min(1.0 - f32::EPSILON),
-            ((sy as f32 + fy.fract()) / self.src_height as f32).min(1.0 - f32::EPSILON),
+            (c.x as usize).min(self.dims[0] - 1),
+            (c.y as usize).min(self.dims[1] - 1),
+            (c.z as usize).min(self.dims[2] - 1),
         ]
     }
 
-    /// Mean squared feature difference between neighbouring output texels
-    /// (right and down neighbours, across the periodic wrap too).
-    pub fn neighbour_error(&self, f: &Features) -> f32 {
-        let fa = |x: usize, y: usize| {
-            let [sx, sy] = self.map[(y % self.height) * self.width + x % self.width];
-            f.at(sx as usize, sy as usize)
-        };
-        let d = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>();
-        let mut s = 0.0f64;
-        for y in 0..self.height {
-            for x in 0..self.width {
-                s += (d(fa(x, y), fa(x + 1, y)) + d(fa(x, y), fa(x, y + 1))) as f64;
+    fn index(&self, c: [usize; 3]) -> usize {
+        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
+    }
+
+    /// Calls `f(i)` for every point within `r` of `p` (`points` as built).
+    fn within(&self, points: &[Vec3], p: Vec3, r: f32, mut f: impl FnMut(usize)) {
+        let reach = (r / self.cell).ceil() as usize;
+        let c = self.cell_of(p);
+        let r2 = r * r;
+        let span = |k: usize| c[k].saturating_sub(reach)..=(c[k] + reach).min(self.dims[k] - 1);
+        for z in span(2) {
+            for y in span(1) {
+                for x in span(0) {
+                    let mut j = self.heads[self.index([x, y, z])];
+                    while j != u32::MAX {
+                        if points[j as usize].distance_squared(p) <= r2 {
+                            f(j as usize);
+                        }
+                        j = self.next[j as usize];
+                    }
+                }
             }
         }
-        (s / (2 * self.width * self.height) as f64) as f32
     }
 }
 
-/// Minimum-error cut across a strip `len` long and `o` wide: dynamic
-/// programming over err(a, c); returns the cut column c for each a.
-fn min_cut(len: usize, o: usize, err: impl Fn(usize, usize) -> f32) -> Vec<usize> {
-    let mut cost = vec![0f32; len * o];
-    for c in 0..o {
-        cost[c] = err(0, c);
-    }
-    for a in 1..len {
-        for c in 0..o {
-            let mut best = cost[(a - 1) * o + c];
-            if c > 0 {
-                best = best.min(cost[(a - 1) * o + c - 1]);
-            }
-            if c + 1 < o {
-                best = best.min(cost[(a - 1) * o + c + 1]);
-            }
-            cost[a * o + c] = err(a, c) + best;
+/// The source coordinates of a shading point: up to four (uv, weight)
+/// pairs, uv in [0, 1)^2 of the material texture, weights summing to 1.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TexLookup {
+    pub len: usize,
+    pub uv: [[f32; 2]; 4],
+    pub weight: [f32; 4],
+}
+
+impl TexLookup {
+    fn one(uv: [f32; 2]) -> TexLookup {
+        TexLookup {
+            len: 1,
+            uv: [uv; 4],
+            weight: [1.0, 0.0, 0.0, 0.0],
         }
     }
-    let mut cut = vec![0usize; len];
-    let last = &cost[(len - 1) * o..];
-    cut[len - 1] = (0..o)
-        .min_by(|&x, &y| last[x].total_cmp(&last[y]))
-        .unwrap_or(0);
-    for a in (0..len - 1).rev() {
-        let c = cut[a + 1];
-        let lo = c.saturating_sub(1);
-        let hi = (c + 1).min(o - 1);
-        cut[a] = (lo..=hi)
-            .min_by(|&x, &y| cost[a * o + x].total_cmp(&cost[a * o + y]))
-            .unwrap_or(c);
+
+    /// The weighted sum of `f` over the coordinates (blending in output
+    /// space).
+    pub fn blend(&self, mut f: impl FnMut([f32; 2]) -> [f32; 3]) -> Vec3 {
+        (0..self.len)
+            .map(|k| Vec3::from(f(self.uv[k])) * self.weight[k])
+            .sum()
     }
-    cut
+}
+
+/// Where the material texture lies on the surface.
+#[derive(Clone, Debug)]
+pub enum TexturePlacement {
+    /// The source tiled over the mesh's own texture coordinates (mm), for a
+    /// material without texture or with synthesis turned off.
+    Tiled {
+        width: usize,
+        height: usize,
+        texel_mm: f32,
+    },
+    /// Synthesized on the surface.
+    Surface(SurfaceTexture),
+}
+
+impl TexturePlacement {
+    /// The coordinates at point `p` (with shading normal `n`) of triangle
+    /// `t`, barycentrics (b1, b2).
+    pub fn lookup(&self, mesh: &Mesh, t: usize, b1: f32, b2: f32, p: Vec3, n: Vec3) -> TexLookup {
+        match self {
+            TexturePlacement::Tiled {
+                width,
+                height,
+                texel_mm,
+            } => {
+                let c = mesh.uv(t, b1, b2) / *texel_mm;
+                let (w, h) = (*width as f32, *height as f32);
+                TexLookup::one([
+                    (c.x.rem_euclid(w) / w).min(1.0 - f32::EPSILON),
+                    (c.y.rem_euclid(h) / h).min(1.0 - f32::EPSILON),
+                ])
+            }
+            TexturePlacement::Surface(s) => s.lookup(p, n),
+        }
+    }
+}
+
+/// The texture synthesized on a surface: points with their frames and
+/// source coordinates.
+#[derive(Clone, Debug)]
+pub struct SurfaceTexture {
+    pub pos: Vec<Vec3>,
+    pub normal: Vec<Vec3>,
+    /// Unit tangent (the texture's +u) in each point's plane.
+    pub tangent: Vec<Vec3>,
+    /// Source coordinate in texels (texel centres at i + 0.5).
+    pub coord: Vec<Vec2>,
+    /// Mean distance between neighbouring points, mm.
+    pub spacing: f32,
+    pub texel_mm: f32,
+    pub src_width: usize,
+    pub src_height: usize,
+    grid: PointGrid,
+}
+
+/// Texel-space offset of `q` from `p` in the frame (t, b = n x t) at p.
+fn offset(p: Vec3, n: Vec3, t: Vec3, q: Vec3, texel_mm: f32) -> Vec2 {
+    let d = q - p;
+    Vec2::new(d.dot(t), d.dot(n.cross(t))) / texel_mm
+}
+
+/// Texels closer than this (Chebyshev distance) are not "similar" to each
+/// other, only shifted: the continuation of a patch offers them already.
+const SIMILAR_APART: i64 = 2;
+
+/// For every source texel, the `k` texels whose 3x3 neighbourhoods of
+/// features are nearest, at least [`SIMILAR_APART`] texels away, searched
+/// among at most 4096 texels.
+fn similar_texels(f: &Features, k: usize, seed: u64) -> Vec<Vec<u32>> {
+    let (w, h) = (f.width, f.height);
+    let n = w * h;
+    let descriptor = |i: usize| -> Vec<f32> {
+        let (x, y) = ((i % w) as i64, (i / w) as i64);
+        let mut d = Vec::with_capacity(9 * f.dim);
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let cx = (x + dx).clamp(0, w as i64 - 1) as usize;
+                let cy = (y + dy).clamp(0, h as i64 - 1) as usize;
+                d.extend_from_slice(f.at(cx, cy));
+            }
+        }
+        d
+    };
+    let desc: Vec<Vec<f32>> = (0..n).into_par_iter().map(descriptor).collect();
+    let pool: Vec<usize> = if n <= 4096 {
+        (0..n).collect()
+    } else {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x51);
+        (0..4096).map(|_| rng.random_range(0..n)).collect()
+    };
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (xi, yi) = ((i % w) as i64, (i / w) as i64);
+            let apart = |j: usize| {
+                let (xj, yj) = ((j % w) as i64, (j / w) as i64);
+                (xj - xi).abs().max((yj - yi).abs()) > SIMILAR_APART
+            };
+            let mut best: Vec<(f32, u32)> = pool
+                .iter()
+                .filter(|&&j| apart(j))
+                .map(|&j| {
+                    let e = desc[i]
+                        .iter()
+                        .zip(&desc[j])
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum();
+                    (e, j as u32)
+                })
+                .collect();
+            let k = k.min(best.len());
+            if k > 0 {
+                best.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
+            }
+            best.truncate(k);
+            best.into_iter().map(|(_, j)| j).collect()
+        })
+        .collect()
+}
+
+impl SurfaceTexture {
+    /// Synthesizes the texture of `f` (texels `texel_mm` apart) on `mesh`,
+    /// oriented by `field`.
+    pub fn synthesize(
+        mesh: &Mesh,
+        field: &TangentField,
+        f: &Features,
+        texel_mm: f32,
+        s: &SynthSettings,
+    ) -> SurfaceTexture {
+        // Poisson-disk points a texel apart (radius = sqrt(0.7 A / N)).
+        let area = mesh.total_area();
+        let target = ((0.7 * area / (texel_mm * texel_mm)) as usize).clamp(1, s.max_points.max(1));
+        let samples = poisson_disk(mesh, target, s.seed ^ 0x7e7);
+        let spacing = samples.radius;
+        let (normal, tangent): (Vec<Vec3>, Vec<Vec3>) = samples
+            .pos
+            .par_iter()
+            .zip(&samples.tri)
+            .map(|(p, &t)| {
+                let (b1, b2) = mesh.barycentric(t as usize, *p);
+                let n = mesh.shading_normal(t as usize, b1, b2);
+                (n, frame(n, field.at(mesh, t as usize, b1, b2)).0)
+            })
+            .unzip();
+        let pos = samples.pos;
+        let grid = PointGrid::new(&pos, 2.0 * spacing);
+        let (w, h) = (f.width, f.height);
+        let similar = similar_texels(f, s.similar, s.seed);
+        let lo = Vec2::splat(0.5);
+        let hi = Vec2::new(w as f32 - 0.5, h as f32 - 0.5);
+        let inside = |c: Vec2| c.cmpge(lo).all() && c.cmple(hi).all();
+        let mut rng = Pcg64Mcg::seed_from_u64(s.seed);
+        let random = |rng: &mut Pcg64Mcg| {
+            Vec2::new(rng.random_range(lo.x..=hi.x), rng.random_range(lo.y..=hi.y))
+        };
+        let radius = s.neighbourhood.max(1.0) * spacing;
+        // Breadth-first order over the surface, so each point meets a
+        // front of points already placed.
+        let mut order = Vec::with_capacity(pos.len());
+        let mut queued = vec![false; pos.len()];
+        for start in 0..pos.len() {
+            if queued[start] {
+                continue;
+            }
+            queued[start] = true;
+            let mut head = order.len();
+            order.push(start);
+            while head < order.len() {
+                let i = order[head];
+                head += 1;
+                grid.within(&pos, pos[i], 1.5 * spacing, |j| {
+                    if !queued[j] {
+                        queued[j] = true;
+                        order.push(j);
+                    }
+                });
+            }
+        }
+        let mut coord = vec![Vec2::NAN; pos.len()];
+        let dist =
+            |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>();
+        let mut neighbours: Vec<(Vec2, Vec2)> = Vec::new();
+        let mut candidates: Vec<Vec2> = Vec::new();
+        let mut targets: Vec<f32> = Vec::new();
+        let mut probe = vec![0.0; f.dim];
+        // The first pass sees the points placed before; the later ones
+        // every neighbour, and may move a point to a better match.
+        for _ in 0..1 + s.refine {
+            for &i in &order {
+                let (p, n, t) = (pos[i], normal[i], tangent[i]);
+                // Placed neighbours: (offset from p, their coordinate).
+                neighbours.clear();
+                grid.within(&pos, p, radius, |j| {
+                    if j != i && !coord[j].is_nan() && normal[j].dot(n) > 0.3 {
+                        neighbours.push((offset(p, n, t, pos[j], texel_mm), coord[j]));
+                    }
+                });
+                // Candidates: the continuation of each neighbour's patch, and
+                // of the texels most like the neighbour's.
+                candidates.clear();
+                if !coord[i].is_nan() {
+                    candidates.push(coord[i]);
+                }
+                for &(d, c) in &neighbours {
+                    candidates.push(c - d);
+                    let (x, y) = f.texel(c);
+                    let frac = c - Vec2::new(x as f32, y as f32);
+                    for &m in &similar[y * w + x] {
+                        let m = m as usize;
+                        candidates.push(Vec2::new((m % w) as f32, (m / w) as f32) + frac - d);
+                    }
+                }
+                candidates.retain(|c| inside(*c));
+                candidates.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+                candidates.dedup_by(|a, b| a.distance_squared(*b) < 0.0625);
+                // The placed neighbours' features, then each candidate's cost.
+                targets.resize(neighbours.len() * f.dim, 0.0);
+                for (k, &(_, cq)) in neighbours.iter().enumerate() {
+                    f.bilinear(cq, &mut targets[k * f.dim..(k + 1) * f.dim]);
+                }
+                let mut cost = |c: Vec2| -> f32 {
+                    neighbours
+                        .iter()
+                        .enumerate()
+                        .map(|(k, &(d, _))| {
+                            f.bilinear(c + d, &mut probe);
+                            dist(&probe, &targets[k * f.dim..(k + 1) * f.dim])
+                        })
+                        .sum()
+                };
+                let best = candidates
+                    .iter()
+                    .map(|&c| (cost(c), c))
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                coord[i] = match best {
+                    Some((_, c)) => c,
+                    None if coord[i].is_nan() => random(&mut rng),
+                    None => coord[i],
+                };
+            }
+        }
+        SurfaceTexture {
+            pos,
+            normal,
+            tangent,
+            coord,
+            spacing,
+            texel_mm,
+            src_width: w,
+            src_height: h,
+            grid,
+        }
+    }
+
+    /// The coordinates at surface point `p` (shading normal `n`): those of
+    /// the points within 1.5 spacings, each extrapolated along its frame,
+    /// weighted by a tent; coordinates within half a texel are merged.
+    pub fn lookup(&self, p: Vec3, n: Vec3) -> TexLookup {
+        let (w, h) = (self.src_width as f32, self.src_height as f32);
+        let lo = Vec2::splat(0.5);
+        let hi = Vec2::new(w - 0.5, h - 0.5);
+        let mut out = TexLookup::default();
+        // Unnormalised coordinate sums per group.
+        let mut sums = [Vec2::ZERO; 4];
+        let mut gather = |r: f32, out: &mut TexLookup| {
+            self.grid.within(&self.pos, p, r, |j| {
+                if self.normal[j].dot(n) <= 0.3 {
+                    return;
+                }
+                let d = self.pos[j].distance(p) / r;
+                let wgt = (1.0 - d).max(1e-3).powi(2);
+                let c = (self.coord[j]
+                    + offset(
+                        self.pos[j],
+                        self.normal[j],
+                        self.tangent[j],
+                        p,
+                        self.texel_mm,
+                    ))
+                .clamp(lo, hi);
+                match (0..out.len).find(|&k| (sums[k] / out.weight[k]).distance_squared(c) < 0.25) {
+                    Some(k) => {
+                        sums[k] += c * wgt;
+                        out.weight[k] += wgt;
+                    }
+                    None if out.len < 4 => {
+                        sums[out.len] = c * wgt;
+                        out.weight[out.len] = wgt;
+                        out.len += 1;
+                    }
+                    None => {
+                        // More than four patches meet: the lightest gives way.
+                        let k = (0..4)
+                            .min_by(|&a, &b| out.weight[a].total_cmp(&out.weight[b]))
+                            .unwrap_or(0);
+                        if wgt > out.weight[k] {
+                            sums[k] = c * wgt;
+                            out.weight[k] = wgt;
+                        }
+                    }
+                }
+            });
+        };
+        gather(1.5 * self.spacing, &mut out);
+        if out.len == 0 {
+            gather(4.0 * self.spacing, &mut out);
+        }
+        if out.len == 0 {
+            return TexLookup::one([0.5, 0.5]);
+        }
+        let total: f32 = out.weight[..out.len].iter().sum();
+        for k in 0..out.len {
+            let c = sums[k] / out.weight[k];
+            out.uv[k] = [
+                (c.x / w).clamp(0.0, 1.0 - f32::EPSILON),
+                (c.y / h).clamp(0.0, 1.0 - f32::EPSILON),
+            ];
+            out.weight[k] /= total;
+        }
+        out
+    }
+
+    /// How much stronger the feature jump is across cuts than between
+    /// neighbours inside the texture, under light `wi` and view `wo` (local
+    /// frame). A pair of neighbouring points (within 1.5 spacings) lies
+    /// across a cut when its coordinates do not continue each other (more
+    /// than half a texel apart after extrapolation along the first point's
+    /// frame). For each such pair the jump, the squared difference of the
+    /// LRF and f_v between the two, is set against the interior
+    /// neighbour's: the difference between the first point and the texel
+    /// its own patch would have put at the second point's place. Channels
+    /// are scaled by their spread over the points.
+    pub fn seam_energy<M: Material>(&self, material: &M, wi: [f32; 3], wo: [f32; 3]) -> SeamEnergy {
+        let (w, h) = (self.src_width as f32, self.src_height as f32);
+        let (lo, hi) = (Vec2::splat(0.5), Vec2::new(w - 0.5, h - 0.5));
+        let look = |c: Vec2| -> [f32; 6] {
+            let uv = [c.x / w, c.y / h];
+            let (l, e) = (material.lrf(uv, wi, wo), material.exiting(uv, wo));
+            [l[0], l[1], l[2], e[0], e[1], e[2]]
+        };
+        let at: Vec<[f32; 6]> = self.coord.par_iter().map(|c| look(*c)).collect();
+        let n = at.len().max(1) as f64;
+        let scale: [f32; 6] = std::array::from_fn(|k| {
+            let mean = at.iter().map(|v| v[k] as f64).sum::<f64>() / n;
+            let var = at.iter().map(|v| (v[k] as f64 - mean).powi(2)).sum::<f64>() / n;
+            if var > 1e-24 {
+                (1.0 / var.sqrt()) as f32
+            } else {
+                0.0
+            }
+        });
+        let energy = |a: &[f32; 6], b: &[f32; 6]| -> f64 {
+            (0..6)
+                .map(|k| ((a[k] - b[k]) * scale[k]).powi(2) as f64)
+                .sum()
+        };
+        let r = 1.5 * self.spacing;
+        let (cut, inner, pairs) = (0..self.pos.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut acc = (0.0f64, 0.0f64, 0usize);
+                self.grid.within(&self.pos, self.pos[i], r, |j| {
+                    if j == i || self.normal[j].dot(self.normal[i]) <= 0.3 {
+                        return;
+                    }
+                    let o = offset(
+                        self.pos[i],
+                        self.normal[i],
+                        self.tangent[i],
+                        self.pos[j],
+                        self.texel_mm,
+                    );
+                    let own = self.coord[i] + o;
+                    if own.distance(self.coord[j]) <= 0.5
+                        || !(own.cmpge(lo).all() && own.cmple(hi).all())
+                    {
+                        return;
+                    }
+                    acc.0 += energy(&at[i], &at[j]);
+                    acc.1 += energy(&at[i], &look(own));
+                    acc.2 += 1;
+                });
+                acc
+            })
+            .reduce(|| (0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+        SeamEnergy {
+            cut_pairs: pairs,
+            cut: cut / pairs.max(1) as f64,
+            inner: inner / pairs.max(1) as f64,
+        }
+    }
+}
+
+/// The result of [`SurfaceTexture::seam_energy`].
+#[derive(Clone, Copy, Debug)]
+pub struct SeamEnergy {
+    /// Ordered neighbour pairs across a cut (each cut counted from both
+    /// sides where both patches reach).
+    pub cut_pairs: usize,
+    /// Mean jump across the cuts.
+    pub cut: f64,
+    /// Mean difference between the same first points and their interior
+    /// neighbours at the same offsets.
+    pub inner: f64,
+}
+
+impl SeamEnergy {
+    /// Cut over interior energy; 1 when there are no cuts.
+    pub fn ratio(&self) -> f64 {
+        if self.cut_pairs == 0 {
+            1.0
+        } else {
+            self.cut / self.inner.max(f64::MIN_POSITIVE)
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::builtin::{sphere, teapot};
+    use qhm_formats::RgbImage;
+    use qhm_model::{DipoleParams, ProfileModel};
 
-    /// A source with smooth structure (stripes + blobs), 1-D features.
-    fn source(w: usize, h: usize) -> Features {
-        let data = (0..w * h)
-            .flat_map(|k| {
-                let (x, y) = ((k % w) as f32, (k / w) as f32);
-                [
-                    (x * 0.37).sin() + 0.5 * (y * 0.23 + x * 0.1).cos(),
-                    ((x * 0.11).sin() * (y * 0.17).cos()) * 2.0,
-                ]
+    /// A material whose f_v and LRF carry a structured texture (blobs and
+    /// stripes of a few texels) that depends on the light and view.
+    struct Blobs {
+        a: RgbImage,
+        b: RgbImage,
+    }
+
+    impl Blobs {
+        fn new(n: usize) -> Blobs {
+            let img = |f: &dyn Fn(f32, f32) -> [f32; 3]| RgbImage {
+                width: n,
+                height: n,
+                data: (0..n * n)
+                    .map(|k| f((k % n) as f32, (k / n) as f32))
+                    .collect(),
+            };
+            Blobs {
+                a: img(&|x, y| {
+                    let v = (x * 0.3).sin() * (y * 0.23).cos() + 0.5 * ((x + y) * 0.11).sin();
+                    [1.0 + v, 1.0 - 0.5 * v, 1.0 + 0.2 * v]
+                }),
+                b: img(&|x, y| {
+                    let v = ((x - 2.0 * y) * 0.15).sin();
+                    [v, 0.3 * v, -v]
+                }),
+            }
+        }
+    }
+
+    impl Material for Blobs {
+        fn dipole(&self) -> DipoleParams {
+            DipoleParams {
+                alpha_prime: [0.99; 3],
+                sigma_t_prime: [1.0; 3],
+                eta: 1.3,
+                model: ProfileModel::Dipole,
+            }
+        }
+        fn entrance(&self, _wi: [f32; 3]) -> [f32; 3] {
+            [1.0; 3]
+        }
+        fn exiting(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
+            let (a, b) = (self.a.sample(uv), self.b.sample(uv));
+            std::array::from_fn(|c| a[c] + 0.4 * wo[0] * b[c])
+        }
+        fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+            let (a, b) = (self.a.sample(uv), self.b.sample(uv));
+            std::array::from_fn(|c| 0.1 * a[c] * wi[2] + 0.2 * b[c] * (wi[0] - wo[1]))
+        }
+        fn texture_size(&self) -> (u32, u32) {
+            (self.a.width as u32, self.a.height as u32)
+        }
+        fn texel_mm(&self) -> f32 {
+            0.5
+        }
+    }
+
+    /// Ten (light, view) pairs in the local frame, none of them among the
+    /// feature directions.
+    fn unseen_pairs() -> Vec<([f32; 3], [f32; 3])> {
+        (0..10)
+            .map(|k| {
+                let (a, b) = (0.6 * k as f32 + 0.3, 2.4 * k as f32 + 1.1);
+                let dir = |phi: f32, theta: f32| {
+                    [
+                        theta.sin() * phi.cos(),
+                        theta.sin() * phi.sin(),
+                        theta.cos(),
+                    ]
+                };
+                (dir(a, 0.2 + 0.1 * k as f32), dir(b, 0.15 + 0.08 * k as f32))
+            })
+            .collect()
+    }
+
+    fn synthesized(mesh: &Mesh, m: &Blobs) -> SurfaceTexture {
+        let field = TangentField::new(mesh);
+        let f = Features::of_material(m);
+        SurfaceTexture::synthesize(mesh, &field, &f, m.texel_mm(), &SynthSettings::default())
+    }
+
+    #[test]
+    fn matched_cuts_are_far_weaker_than_pasted_patches() {
+        let m = Blobs::new(48);
+        let mesh = sphere(20.0, 96, 48).unwrap();
+        let tex = synthesized(&mesh, &m);
+        let (w, h) = (tex.src_width as f32, tex.src_height as f32);
+        assert!(
+            tex.coord
+                .iter()
+                .all(|c| (0.5..=w - 0.5).contains(&c.x) && (0.5..=h - 0.5).contains(&c.y))
+        );
+        let matched: Vec<f64> = unseen_pairs()
+            .into_iter()
+            .map(|(wi, wo)| tex.seam_energy(&m, wi, wo))
+            .inspect(|e| assert!(e.cut_pairs > 100, "{e:?}"))
+            .map(|e| e.ratio())
+            .collect();
+        // The measure can fail: patches pasted at random offsets, without
+        // matching, make strong seams.
+        let mut rng = Pcg64Mcg::seed_from_u64(9);
+        let seeds: Vec<(Vec3, Vec2)> = (0..40)
+            .map(|_| {
+                let i = rng.random_range(0..tex.pos.len());
+                let shift = Vec2::new(rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0));
+                (tex.pos[i], shift)
             })
             .collect();
-        Features {
-            width: w,
-            height: h,
-            dim: 2,
-            data,
+        let mut pasted = tex.clone();
+        for (p, c) in pasted.pos.iter().zip(pasted.coord.iter_mut()) {
+            let (_, shift) = seeds
+                .iter()
+                .min_by(|a, b| a.0.distance(*p).total_cmp(&b.0.distance(*p)))
+                .unwrap();
+            *c = (*c + *shift).clamp(Vec2::splat(0.5), Vec2::new(w - 0.5, h - 0.5));
+        }
+        for ((wi, wo), matched) in unseen_pairs().into_iter().zip(matched) {
+            let pasted = pasted.seam_energy(&m, wi, wo).ratio();
+            assert!(
+                matched < 1.6 && pasted > 2.0 * matched,
+                "{matched} vs {pasted}"
+            );
         }
     }
 
     #[test]
-    fn quilted_texture_has_no_stronger_seams_than_plain_tiling() {
-        let f = source(64, 64);
-        let s = SynthSettings {
-            seed: 3,
-            ..Default::default()
-        };
-        let q = SynthTexture::quilt(&f, 0.1, &s);
-        assert!(q.width >= 4 * 64 && q.height >= 4 * 64);
-        let src = SynthTexture::tiled(64, 64, 0.1);
-        // Inside the source (ignoring its own tiling seam) neighbours differ by:
-        let interior = {
-            let mut s = 0.0;
-            let mut n = 0;
-            for y in 0..63 {
-                for x in 0..63 {
-                    let d = |a: &[f32], b: &[f32]| {
-                        a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>()
-                    };
-                    s += d(f.at(x, y), f.at(x + 1, y)) + d(f.at(x, y), f.at(x, y + 1));
-                    n += 2;
-                }
-            }
-            s / n as f32
-        };
-        let tiled = src.neighbour_error(&f);
-        let quilted = q.neighbour_error(&f);
-        assert!(
-            tiled > 1.5 * interior,
-            "tiling of this source has seams: {tiled} vs {interior}"
-        );
-        assert!(
-            quilted < 1.3 * interior,
-            "quilted {quilted} vs interior {interior}"
-        );
-        // Not a plain copy: many distinct source offsets are used.
-        let offsets: std::collections::HashSet<_> = (0..q.height)
-            .step_by(18)
-            .flat_map(|y| (0..q.width).step_by(18).map(move |x| (x, y)))
-            .map(|(x, y)| {
-                let [sx, sy] = q.map[y * q.width + x];
-                (sx as i64 - x as i64, sy as i64 - y as i64)
-            })
-            .collect();
-        assert!(offsets.len() > 50, "{}", offsets.len());
-    }
-
-    #[test]
-    fn lookup_wraps_and_stays_in_range() {
-        let t = SynthTexture::tiled(8, 4, 0.5);
-        assert_eq!(t.lookup(Vec2::new(0.25, 0.25)), [0.0625, 0.125]);
-        let a = t.lookup(Vec2::new(-0.25, 1000.0));
-        assert!(a.iter().all(|v| (0.0..1.0).contains(v)));
-    }
-
-    #[test]
-    fn min_cut_follows_the_cheap_path() {
-        // Cheap column 2 everywhere.
-        let cut = min_cut(10, 5, |_, c| if c == 2 { 0.0 } else { 1.0 });
-        assert!(cut.iter().all(|&c| c == 2));
+    fn a_lookup_continues_the_nearest_patch_and_blends_across_cuts() {
+        let m = Blobs::new(32);
+        let mesh = teapot(12.0, 12).unwrap();
+        let tex = synthesized(&mesh, &m);
+        let (w, h) = (tex.src_width as f32, tex.src_height as f32);
+        let mut blended = 0;
+        for i in (0..tex.pos.len()).step_by(97) {
+            let l = tex.lookup(tex.pos[i], tex.normal[i]);
+            assert!(l.len >= 1);
+            let total: f32 = l.weight[..l.len].iter().sum();
+            assert!((total - 1.0).abs() < 1e-4);
+            // The heaviest coordinate is the point's own (up to a texel of
+            // averaging with its patch's neighbours).
+            let k = (0..l.len)
+                .max_by(|&a, &b| l.weight[a].total_cmp(&l.weight[b]))
+                .unwrap();
+            let c = Vec2::new(l.uv[k][0] * w, l.uv[k][1] * h);
+            assert!(c.distance(tex.coord[i]) < 1.0, "{c} vs {}", tex.coord[i]);
+            blended += usize::from(l.len > 1);
+        }
+        assert!(blended > 0, "no lookup crossed a cut");
     }
 }
