@@ -328,6 +328,9 @@ fn offset(p: Vec3, n: Vec3, t: Vec3, q: Vec3, texel_mm: f32) -> Vec2 {
     Vec2::new(d.dot(t), d.dot(n.cross(t))) / texel_mm
 }
 
+/// The radius of a lookup's tent, in point spacings.
+const LOOKUP_RADIUS: f32 = 1.0;
+
 /// Texels closer than this (Chebyshev distance) are not "similar" to each
 /// other, only shifted: the continuation of a patch offers them already.
 const SIMILAR_APART: i64 = 2;
@@ -523,7 +526,7 @@ impl SurfaceTexture {
     }
 
     /// The coordinates at surface point `p` (shading normal `n`): those of
-    /// the points within 1.5 spacings, each extrapolated along its frame,
+    /// the points within [`LOOKUP_RADIUS`] spacings, each extrapolated along its frame,
     /// weighted by a tent; coordinates within half a texel are merged.
     pub fn lookup(&self, p: Vec3, n: Vec3) -> TexLookup {
         let (w, h) = (self.src_width as f32, self.src_height as f32);
@@ -571,7 +574,7 @@ impl SurfaceTexture {
                 }
             });
         };
-        gather(1.5 * self.spacing, &mut out);
+        gather(LOOKUP_RADIUS * self.spacing, &mut out);
         if out.len == 0 {
             gather(4.0 * self.spacing, &mut out);
         }
@@ -836,7 +839,21 @@ mod tests {
                 .unwrap();
             let c = Vec2::new(l.uv[k][0] * w, l.uv[k][1] * h);
             assert!(c.distance(tex.coord[i]) < 1.0, "{c} vs {}", tex.coord[i]);
-            blended += usize::from(l.len > 1);
+            // Half-way to a neighbour across a cut, both patches count.
+            tex.grid
+                .within(&tex.pos, tex.pos[i], 1.5 * tex.spacing, |j| {
+                    let o = offset(
+                        tex.pos[i],
+                        tex.normal[i],
+                        tex.tangent[i],
+                        tex.pos[j],
+                        tex.texel_mm,
+                    );
+                    if (tex.coord[i] + o).distance(tex.coord[j]) > 2.0 {
+                        let mid = tex.lookup((tex.pos[i] + tex.pos[j]) * 0.5, tex.normal[i]);
+                        blended += usize::from(mid.len > 1);
+                    }
+                });
         }
         assert!(blended > 0, "no lookup crossed a cut");
     }
