@@ -32,8 +32,8 @@ mod plots;
 pub use plots::{entrance_svg, profile_svg};
 
 use images::{
-    Scale, colour_bar, dir_label, div_scale, invalid_note, mosaic_png, rgb_scale, seq_scale,
-    texture_png, tile,
+    Scale, colour_bar, dir_label, div_scale, invalid_note, mosaic_png, rgb_scale, rows_png,
+    seq_scale, texture_png, tile,
 };
 use plots::channel_profile_svg;
 
@@ -582,6 +582,11 @@ fn image_sections(
                 &format!("{bar}{}", invalid_note(maps)),
             ));
         }
+        let grid: Vec<(&Scale, &[&Texture])> = rows
+            .iter()
+            .map(|(_, scale, maps, _)| (*scale, maps.as_slice()))
+            .collect();
+        files.push(("fig6.png", rows_png(&grid, size)));
     }
 
     // Every f_v view, labelled.
@@ -646,7 +651,8 @@ fn image_sections(
 }
 
 /// Writes `index.html` (self-contained) and, beside it, `profile.svg`,
-/// `entrance.svg`, `fv.png` and `lrf.png` into `out`.
+/// `entrance.svg`, `fig6.png` (lamp image, f_v and LRF rows), `fv.png` and
+/// `lrf.png` into `out`.
 pub fn write_report(
     model: &MaterialModel,
     model_dir: &Path,
@@ -787,7 +793,13 @@ mod tests {
             "view labels"
         );
         assert_eq!(html.matches("class=\"cbar\"").count(), 5);
-        for f in ["profile.svg", "entrance.svg", "fv.png", "lrf.png"] {
+        for f in [
+            "profile.svg",
+            "entrance.svg",
+            "fig6.png",
+            "fv.png",
+            "lrf.png",
+        ] {
             assert!(out.path().join(f).exists(), "{f}");
         }
         let png = image::open(out.path().join("lrf.png")).unwrap();

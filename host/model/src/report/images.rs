@@ -204,6 +204,36 @@ pub(super) fn png_bytes(img: &image::RgbImage) -> Vec<u8> {
     out.into_inner()
 }
 
+/// Rows of textures, each row with its own scale, tiled into one PNG (paper
+/// Fig. 6 beside the page): every tile `size` texels across at most.
+pub(super) fn rows_png(rows: &[(&Scale, &[&Texture])], size: usize) -> Vec<u8> {
+    let cols = rows.iter().map(|(_, m)| m.len()).max().unwrap_or(0).max(1);
+    let first = rows.iter().flat_map(|(_, m)| m.first()).next();
+    let (w, h) = first.map_or((1, 1), |t| (t.width.max(1), t.height.max(1)));
+    let k = (size / w.max(h)).max(1);
+    let gap = 4;
+    let mut img = image::RgbImage::from_pixel(
+        (cols * (w * k + gap) + gap) as u32,
+        (rows.len().max(1) * (h * k + gap) + gap) as u32,
+        image::Rgb([255, 255, 255]),
+    );
+    for (r, (scale, maps)) in rows.iter().enumerate() {
+        for (c, t) in maps.iter().enumerate() {
+            let (ox, oy) = (c * (w * k + gap) + gap, r * (h * k + gap) + gap);
+            for y in 0..(h * k).min(t.height * k) {
+                for x in 0..(w * k).min(t.width * k) {
+                    img.put_pixel(
+                        (ox + x) as u32,
+                        (oy + y) as u32,
+                        image::Rgb(scale.pixel(t.get(x / k, y / k))),
+                    );
+                }
+            }
+        }
+    }
+    png_bytes(&img)
+}
+
 /// Tiles textures into one PNG (for the files beside the page).
 pub(super) fn mosaic_png(maps: &[&Texture], scale: &Scale) -> Vec<u8> {
     let cols = (maps.len() as f64).sqrt().ceil().max(1.0) as usize;
