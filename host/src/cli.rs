@@ -45,6 +45,8 @@ pub enum Command {
     Report(cmd::report::ReportArgs),
     /// A local web page to relight a material model on a mesh: qhm view MODEL_DIR [--port 8080] [--open].
     View(cmd::view::ViewArgs),
+    /// A render against a ground truth: means, low-pass block RMSE, local-contrast histograms.
+    Compare(cmd::compare::CompareArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -60,6 +62,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Sim(args) => cmd::sim::run(args),
         Command::FitProfile(args) => cmd::fit::run_profile(args),
         Command::Fit(args) => cmd::fit::run_fit(args),
+        Command::Compare(args) => cmd::compare::run(args),
         Command::Report(args) => cmd::report::run(args),
         Command::View(args) => cmd::view::run(args),
     }

@@ -1,4 +1,4 @@
-//! The bad-input sweep: some 460 bad inputs across every `qhm` command (bad
+//! The bad-input sweep: some 470 bad inputs across every `qhm` command (bad
 //! CLI values, unknown names, missing files, directories where files are
 //! expected, empty, truncated and garbage TOML, CSV, OBJ, PLY, EXR, model
 //! manifests, capture.toml, journals, calibration and sample files). Each
@@ -616,6 +616,22 @@ fn cases() -> Vec<(String, &'static str)> {
         add(format!("fit rect_garbage -o new_model {a}"), "");
     }
     add("fit rect_garbage".into(), "");
+
+    // compare: unreadable images, a bad block size.
+    let ok = "model_ok/fv/view_000.exr";
+    for a in [
+        format!("missing.exr {ok}"),
+        format!("garbage.exr {ok}"),
+        format!("empty.exr {ok}"),
+        format!("dir.exr {ok}"),
+        format!("{ok} garbage.exr"),
+        format!("{ok} {ok} --truth2 missing.exr"),
+        format!("{ok} {ok} --block 0"),
+        format!("{ok} {ok} --block 2"),
+        format!("{ok} {ok} --block abc"),
+    ] {
+        add(format!("compare {a}"), "");
+    }
 
     // report: also a file where the model directory should be.
     for m in ["dir.toml", "keep/notes.txt"] {

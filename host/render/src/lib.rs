@@ -22,6 +22,7 @@ pub mod boundary;
 pub mod builtin;
 pub mod bvh;
 pub mod camera;
+pub mod compare;
 pub mod distrib;
 mod error;
 pub mod export;

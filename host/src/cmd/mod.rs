@@ -1,6 +1,7 @@
 //! One module per `qhm` subcommand.
 pub mod calibrate;
 pub mod capture;
+pub mod compare;
 pub mod demo;
 pub mod fit;
 pub mod flash;
