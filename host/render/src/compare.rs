@@ -11,7 +11,7 @@
 use qhm_formats::RgbImage;
 
 /// The statistics of [`compare`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Comparison {
     /// Pixels compared.
     pub pixels: usize,

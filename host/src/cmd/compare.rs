@@ -37,18 +37,7 @@ pub fn run(args: CompareArgs) -> anyhow::Result<ExitCode> {
     let c = qhm_render::compare::compare(&render, &truth, truth2.as_ref(), args.block)
         .map_err(|e| anyhow!(e))?;
     if args.json {
-        let v = serde_json::json!({
-            "pixels": c.pixels,
-            "mean_ratio": c.mean_ratio,
-            "luminance_ratio": c.luminance_ratio,
-            "blocks": c.blocks,
-            "block": args.block,
-            "block_rmse": c.block_rmse,
-            "truth_noise": c.truth_noise,
-            "block_rmse_denoised": c.block_rmse_denoised,
-            "contrast_distance": c.contrast_distance,
-        });
-        println!("{v}");
+        println!("{}", serde_json::to_string(&c)?);
     } else {
         let [r, g, b] = c.mean_ratio;
         println!("pixels compared        {}", c.pixels);
