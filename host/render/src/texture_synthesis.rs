@@ -582,13 +582,14 @@ impl SurfaceTexture {
             return TexLookup::one([0.5, 0.5]);
         }
         let total: f32 = out.weight[..out.len].iter().sum();
-        for k in 0..out.len {
-            let c = sums[k] / out.weight[k];
-            out.uv[k] = [
+        let n = out.len;
+        for ((uv, wgt), sum) in out.uv.iter_mut().zip(&mut out.weight).zip(sums).take(n) {
+            let c = sum / *wgt;
+            *uv = [
                 (c.x / w).clamp(0.0, 1.0 - f32::EPSILON),
                 (c.y / h).clamp(0.0, 1.0 - f32::EPSILON),
             ];
-            out.weight[k] /= total;
+            *wgt /= total;
         }
         out
     }
