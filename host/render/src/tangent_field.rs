@@ -1,20 +1,22 @@
-//! The smoothest tangent field on a mesh: one unit tangent per vertex that
-//! turns as little as the surface allows from vertex to vertex. It orients
-//! the material texture on the surface (the texture's +u axis, and so the
-//! azimuth of every f, f_v and LRF lookup), so a frame that jumps between
+//! A smooth tangent field on a mesh: one tangent per vertex that turns as
+//! little as the surface allows from vertex to vertex. It orients the
+//! material texture on the surface (the texture's +u axis, and so the
+//! azimuth of every f, f_v and LRF lookup), so a frame that jumped between
 //! neighbouring vertices would show as a crease.
 //!
 //! Method: Knöppel, Crane, Pinkall & Schröder 2013, "Globally optimal
 //! direction fields". A tangent is a complex number in a per-vertex basis;
-//! parallel transport along an edge is a rotation e^{iρ}; the field is the
-//! smallest eigenvector of the connection Laplacian
-//! Σ_edges |z_i - e^{iρ_ij} z_j|², found by inverse iteration with
-//! conjugate gradients, per connected part. Unlike smoothing unit vectors,
-//! this finds the global optimum and places the singularities a closed
-//! surface must have where they cost least.
+//! parallel transport along an edge is a rotation e^{iρ}. The field
+//! minimises the cotangent-weighted connection Dirichlet energy
+//! Σ_edges w |z_i - e^{iρ_ij} z_j|² plus a pull s |z - q|² towards a guide q
+//! (the up direction projected on the surface), one sparse Hermitian solve
+//! (L + s M) z = s M q by conjugate gradients per connected part. Where the
+//! guide fades (a pole) smoothness decides, and the singularities a closed
+//! surface must have land there.
 //!
-//! Coincident vertices (UV seams, patch borders, a box's sharp edges) are
-//! joined by extra edges so the field is continuous across them.
+//! Coincident vertices (UV seams, patch borders) are joined by stiff edges
+//! so the field is continuous across them; across a sharp crease (a box's
+//! edge) they are not, and each face keeps its own guide.
 
 use glam::{DVec2, Quat, Vec3};
 use rayon::prelude::*;
