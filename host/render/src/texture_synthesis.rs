@@ -141,7 +141,8 @@ fn normalise(data: &mut [f32], dim: usize) {
 /// Synthesis parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct SynthSettings {
-    /// Radius of the matched neighbourhood, texels.
+    /// Radius of the matched neighbourhood, in point spacings (a texel,
+    /// unless `max_points` spreads the points wider).
     pub neighbourhood: f32,
     /// Similar source texels tried per neighbour (k-coherence).
     pub similar: usize,
