@@ -172,8 +172,9 @@ impl Camera for AravisCamera {
 const POLL: Duration = Duration::from_millis(5);
 
 /// Longest wait for a software trigger's frame beyond its exposure: after it
-/// the frame counts as lost (and its tag with it).
-const TRIGGER_GRACE: Duration = Duration::from_secs(3);
+/// the frame counts as lost (and its tag with it). Long enough that a
+/// camera (or its host) starved of CPU for a few seconds is late, not lost.
+const TRIGGER_GRACE: Duration = Duration::from_secs(10);
 
 struct Worker {
     index: u8,
