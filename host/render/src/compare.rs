@@ -34,7 +34,7 @@ pub struct Comparison {
 }
 
 fn luminance(c: [f32; 3]) -> f64 {
-    0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64
+    crate::light::luminance(glam::Vec3::from(c)) as f64
 }
 
 /// Local contrast histogram bins over [-1, 1], plus one each side.
