@@ -1,7 +1,7 @@
 //! Triangle meshes: loading (OBJ via [`crate::obj`], PLY via [`crate::ply`]),
 //! validation (finite values, indices, manifold edges, degenerate faces),
 //! and the attributes the renderer needs: per-vertex normals (generated from
-//! area-weighted face normals when absent) and per-corner surface texture
+//! area-weighted face normals when absent, split at creases) and per-corner surface texture
 //! coordinates in millimetres (box-projected when absent).
 
 use std::collections::HashMap;
@@ -224,14 +224,7 @@ impl Mesh {
         let triangles = kept;
         check_manifold(&triangles, &weld, &positions)?;
 
-        let normals = match normals {
-            Some(ns) => ns
-                .iter()
-                .map(|v| Vec3::from(*v).normalize_or_zero())
-                .collect(),
-            None => generated_normals(&positions, &triangles, &weld),
-        };
-
+        // Texture coordinates first: generated normals may split vertices.
         let uvs: Vec<[Vec2; 3]> = match uvs {
             Some(us) => {
                 let s = uv_scale_mm.unwrap_or(diag);
@@ -244,6 +237,14 @@ impl Mesh {
                 .iter()
                 .map(|t| box_projection(t.map(|i| positions[i as usize])))
                 .collect(),
+        };
+        let (mut positions, mut triangles, mut weld) = (positions, triangles, weld);
+        let normals = match normals {
+            Some(ns) => ns
+                .iter()
+                .map(|v| Vec3::from(*v).normalize_or_zero())
+                .collect(),
+            None => generated_normals(&mut positions, &mut triangles, &mut weld),
         };
         Ok(Mesh {
             positions,
@@ -370,19 +371,71 @@ fn check_manifold(triangles: &[[u32; 3]], weld: &[u32], pos: &[Vec3]) -> Result<
     Ok(())
 }
 
-fn generated_normals(positions: &[Vec3], triangles: &[[u32; 3]], weld: &[u32]) -> Vec<Vec3> {
-    let mut acc = vec![Vec3::ZERO; positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| positions[i as usize]);
-        // Cross product length = 2 * area: area weighting for free.
-        let n = (b - a).cross(c - a);
+/// Faces meeting at more than this angle (degrees) keep their own normals
+/// when normals are generated: a box's faces stay flat, while a sphere of
+/// 16 segments (22.5 degrees between neighbours) stays smooth.
+pub const CREASE_DEG: f32 = 30.0;
+
+/// Per-vertex normals for a mesh that has none: at each corner, the
+/// area-weighted normals of the faces around its vertex that meet the
+/// corner's own face at less than [`CREASE_DEG`]. A vertex whose corners
+/// get different normals (a crease or a box corner) is split into copies,
+/// appended to `positions` and `weld` (a copy welds to what its original
+/// welds to), and the triangles index the copies.
+fn generated_normals(
+    positions: &mut Vec<Vec3>,
+    triangles: &mut [[u32; 3]],
+    weld: &mut Vec<u32>,
+) -> Vec<Vec3> {
+    // Cross product length = 2 * area: area weighting for free.
+    let area_normals: Vec<Vec3> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| positions[i as usize]);
+            (b - a).cross(c - a)
+        })
+        .collect();
+    let unit: Vec<Vec3> = area_normals.iter().map(|n| n.normalize_or_zero()).collect();
+    let mut around: HashMap<u32, Vec<usize>> = HashMap::new();
+    for (f, t) in triangles.iter().enumerate() {
         for &i in t {
-            acc[weld[i as usize] as usize] += n;
+            around.entry(weld[i as usize]).or_default().push(f);
         }
     }
-    (0..positions.len())
-        .map(|i| acc[weld[i] as usize].normalize_or_zero())
-        .collect()
+    let cos_crease = CREASE_DEG.to_radians().cos();
+    let mut normals = vec![Vec3::ZERO; positions.len()];
+    // The normals each original vertex has been given, with the vertex
+    // (itself or a copy) that carries each.
+    let mut given: Vec<Vec<(Vec3, u32)>> = vec![Vec::new(); positions.len()];
+    for f in 0..triangles.len() {
+        for k in 0..3 {
+            let i = triangles[f][k] as usize;
+            let n = around[&weld[i]]
+                .iter()
+                .filter(|&&g| unit[g].dot(unit[f]) >= cos_crease)
+                .map(|&g| area_normals[g])
+                .sum::<Vec3>()
+                .normalize_or_zero();
+            let carrier = match given[i].iter().find(|(m, _)| m.dot(n) > 0.9999) {
+                Some(&(_, v)) => v,
+                None if given[i].is_empty() => {
+                    normals[i] = n;
+                    given[i].push((n, i as u32));
+                    i as u32
+                }
+                None => {
+                    let v = positions.len() as u32;
+                    positions.push(positions[i]);
+                    weld.push(weld[i]);
+                    normals.push(n);
+                    given[i].push((n, v));
+                    v
+                }
+            };
+            triangles[f][k] = carrier;
+        }
+    }
+    normals
 }
 
 /// Box projection: drop the face normal's dominant axis, keep the other two
@@ -423,6 +476,60 @@ mod tests {
             (b1 - 0.5).abs() < 1e-6 && (b2 - 0.25).abs() < 1e-6,
             "{b1} {b2}"
         );
+    }
+
+    /// A box of 8 shared corners, as a hand-written OBJ without normals has.
+    fn shared_corner_box() -> MeshInput {
+        let positions = (0..8)
+            .map(|i| [(i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32])
+            .collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        MeshInput {
+            positions,
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                .collect(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn generated_normals_keep_a_box_flat_and_a_sphere_smooth() {
+        let m = Mesh::build(shared_corner_box(), None).unwrap();
+        // every corner of every face carries the face's own normal
+        for t in 0..m.triangles.len() {
+            let face = m.face_normal(t);
+            for (b1, b2) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.3, 0.3)] {
+                let n = m.shading_normal(t, b1, b2);
+                assert!((n - face).length() < 1e-6, "face {t}: {n} against {face}");
+            }
+        }
+        // 8 corners, each on 3 faces; the copies weld to their originals
+        assert_eq!(m.positions.len(), 24);
+        assert_eq!(m.weld.iter().collect::<std::collections::HashSet<_>>().len(), 8);
+        // a sphere of 32 x 16 facets has no crease: no vertex is split
+        let s = crate::builtin::sphere(10.0, 32, 16).unwrap();
+        let input = MeshInput {
+            positions: s.positions.iter().map(|p| p.to_array()).collect(),
+            triangles: s.triangles.clone(),
+            ..Default::default()
+        };
+        let welded = input.positions.len();
+        let g = Mesh::build(input, None).unwrap();
+        assert_eq!(g.positions.len(), welded);
+        // (the sphere rests on z = 0)
+        for &i in g.triangles.iter().flatten() {
+            let (p, n) = (g.positions[i as usize], g.normals[i as usize]);
+            assert!(n.dot((p - Vec3::Z * 10.0).normalize()) > 0.98, "{n} at {p}");
+        }
     }
 
     #[test]

@@ -52,10 +52,6 @@ const SMOOTHING: f32 = 0.2;
 /// the field follows +x there.
 const LEVEL_TILT: f64 = 0.1;
 
-/// Welded copies whose normals differ by more than this (a sharp crease,
-/// such as a box's edge) are not joined: each side keeps its own guide.
-const SMOOTH_SEAM_COS: f32 = 0.866;
-
 /// Complex product.
 fn mul(a: DVec2, b: DVec2) -> DVec2 {
     DVec2::new(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x)
@@ -121,6 +117,9 @@ fn links(mesh: &Mesh, normals: &[Vec3], basis: &[(Vec3, Vec3)]) -> Vec<Link> {
     let mean = weights.values().map(|w| w.abs()).sum::<f64>() / weights.len().max(1) as f64;
     let floor = 1e-3 * mean.max(f64::MIN_POSITIVE);
     let stiff = 10.0 * mean.max(f64::MIN_POSITIVE);
+    // Welded copies whose normals differ by more than a crease (a box's
+    // edge) are not joined: each side keeps its own guide.
+    let smooth_seam_cos = crate::mesh::CREASE_DEG.to_radians().cos();
     let mut pairs: Vec<((u32, u32), f64)> = weights
         .into_iter()
         .map(|(k, w)| (k, w.max(floor)))
@@ -129,7 +128,7 @@ fn links(mesh: &Mesh, normals: &[Vec3], basis: &[(Vec3, Vec3)]) -> Vec<Link> {
                 .iter()
                 .enumerate()
                 .filter(|&(i, &w)| {
-                    w as usize != i && normals[i].dot(normals[w as usize]) > SMOOTH_SEAM_COS
+                    w as usize != i && normals[i].dot(normals[w as usize]) > smooth_seam_cos
                 })
                 .map(|(i, &w)| ((w.min(i as u32), w.max(i as u32)), stiff)),
         )
