@@ -126,7 +126,10 @@ pub struct PlanConfig {
     /// Laser scan positions per sweep, evenly over +-`scan_half_width_mm` on the plane.
     pub scan_positions: u16,
     pub scan_half_width_mm: f64,
-    /// Exposure brackets, s.
+    /// Exposure brackets, s. A pixel saturated in every exposure is lost
+    /// with the texels it falls in, and those are the brightest (a cell
+    /// wall's glint, a translucent material's hot spot), so the shortest
+    /// lamp exposure must hold them: losing them biases the LRF low.
     pub laser_exposures: Vec<f64>,
     pub lamp_exposures: Vec<f64>,
     /// Sensor gain, dB.
@@ -173,7 +176,7 @@ impl PlanConfig {
             scan_positions: 32,
             scan_half_width_mm: 12.0,
             laser_exposures: vec![0.0000625, 0.0005, 0.002, 0.008, 0.032, 0.128],
-            lamp_exposures: vec![0.004, 0.016, 0.064],
+            lamp_exposures: vec![0.001, 0.004, 0.016, 0.064],
             gain_db: 0.0,
             laser_power_permille: 1000,
             binning: 1,
@@ -193,7 +196,7 @@ impl PlanConfig {
                 reflectance_turntable: 4,
                 scan_positions: 6,
                 laser_exposures: vec![0.0000625, 0.0005, 0.004, 0.032],
-                lamp_exposures: vec![0.008, 0.064],
+                lamp_exposures: vec![0.001, 0.008, 0.064],
                 binning: 4,
                 rectified_size: 64,
                 ..base
@@ -216,7 +219,7 @@ impl PlanConfig {
                 // sides of each: f(w_i) compares whole bands.
                 scan_half_width_mm: 6.0,
                 laser_exposures: vec![0.0000625, 0.0005, 0.004, 0.032],
-                lamp_exposures: vec![0.008, 0.064],
+                lamp_exposures: vec![0.001, 0.008, 0.064],
                 binning: 4,
                 rectified_size: 48,
                 ..base

@@ -85,8 +85,11 @@ pub(super) fn fit_lrf(
                 }
             }
         }
+        let total = maps.len() * ww * wh * 3;
         notes.push(format!(
-            "LRF: {nan} texel-channels were not valid in the lamp images; set to 0"
+            "LRF: {nan} of {total} texel-channels ({:.1} %) were not valid in the lamp images \
+             (saturated in every exposure: the plan's lamp_exposures need a shorter one); set to 0",
+            100.0 * nan as f64 / total.max(1) as f64
         ));
     }
     let light = light_ids(&samples);
