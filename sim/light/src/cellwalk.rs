@@ -9,10 +9,12 @@
 //! walls, which a path crosses hundreds of times, that loss (a few per cent
 //! per crossing) would act as a strong absorption, so a masked or
 //! rejected sample is drawn again: the walls conserve energy, their
-//! multiple-scattered share returned to the single-scattering lobe. Inside the walls it random-walks
-//! as in a homogeneous medium. Every boundary event is splatted into every
-//! camera through its BSDF, with visibility traced through the air
-//! (cells included) towards the camera.
+//! multiple-scattered share returned to the single-scattering lobe (its
+//! density f |cos| / A, A the wall's albedo [`crate::cells::WallAlbedo`]).
+//! Inside the walls it random-walks as in a homogeneous medium. Every
+//! boundary event is splatted into every camera through that density (the
+//! BSDF at the top, f / A at a wall), with visibility traced through the
+//! air (cells included) towards the camera.
 
 use glam::Vec3;
 
@@ -307,10 +309,12 @@ impl Pass<'_> {
             Boundary::Wall => {
                 t.wall_events += 1;
                 let bsdf = &cells.wall;
+                // the resampled wall's density towards wi is f |cos| / A(wo)
+                let inv_a = 1.0 / cells.albedo.at(wo);
                 self.splat_with(
                     x,
                     local,
-                    |wi| bsdf.f(wo, wi, TransportMode::Importance),
+                    |wi| bsdf.f(wo, wi, TransportMode::Importance) * inv_a,
                     visible,
                 );
                 for _ in 0..64 {

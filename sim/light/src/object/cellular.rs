@@ -32,75 +32,16 @@ use super::bvh::Hit;
 use super::integrator::{Ctx, Frame};
 use crate::cells::Cells;
 use crate::microfacet::{Dielectric, TransportMode};
-use crate::rng::{Rng, WalkRng, exp1_from_bits};
+use crate::rng::{WalkRng, exp1_from_bits};
 use crate::walk::sample_uniform_sphere_bits;
 
 use super::{DeltaLight, ObjectError, ObjectStats};
 
 /// Boundary events per path at most (a path crosses hundreds of walls).
 const MAX_BOUNDARY_EVENTS: u32 = 1_000_000;
-/// Bins of the albedo tables over |cos theta|.
-const ALBEDO_BINS: usize = 64;
-/// Samples per bin of the albedo tables.
-const ALBEDO_SAMPLES: usize = 4096;
-
-/// The wall's single-scattering albedo A(u) (importance mode, what the
-/// photon walk keeps per sample), per side and |cos theta| of u, local
-/// frame (+z the air).
-#[derive(Debug, Clone)]
-pub struct WallAlbedo {
-    /// [air side, wall side][bin]: mean at bin centres.
-    table: [[f32; ALBEDO_BINS]; 2],
-}
-
-impl WallAlbedo {
-    /// Stratified Monte Carlo, seeded: the same table every render.
-    pub fn new(wall: &Dielectric) -> WallAlbedo {
-        let mut table = [[1.0f32; ALBEDO_BINS]; 2];
-        if wall.mf.effectively_smooth() {
-            return WallAlbedo { table };
-        }
-        let mut rng = Rng::new(0x57a1_1a1b, 0);
-        for (side, row) in table.iter_mut().enumerate() {
-            for (b, a) in row.iter_mut().enumerate() {
-                let mu = (b as f32 + 0.5) / ALBEDO_BINS as f32;
-                let z = if side == 0 { mu } else { -mu };
-                let u = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, z);
-                let n = (ALBEDO_SAMPLES as f32).sqrt() as usize;
-                let mut sum = 0.0f64;
-                for i in 0..n {
-                    for j in 0..n {
-                        let uv = [
-                            (i as f32 + rng.uniform()) / n as f32,
-                            (j as f32 + rng.uniform()) / n as f32,
-                        ];
-                        if let Some(s) =
-                            wall.sample_f(u, rng.uniform(), uv, TransportMode::Importance)
-                        {
-                            sum += s.weight.min(1.0) as f64;
-                        }
-                    }
-                }
-                *a = (sum / (n * n) as f64) as f32;
-            }
-        }
-        WallAlbedo { table }
-    }
-
-    /// A(u) for a local direction u, linear between bin centres.
-    pub fn at(&self, u: Vec3) -> f32 {
-        let row = &self.table[(u.z < 0.0) as usize];
-        let x = (u.z.abs() * ALBEDO_BINS as f32 - 0.5).clamp(0.0, (ALBEDO_BINS - 1) as f32);
-        let i = (x as usize).min(ALBEDO_BINS - 2);
-        let f = x - i as f32;
-        (row[i] * (1.0 - f) + row[i + 1] * f).max(1e-3)
-    }
-}
-
 /// What fills the object besides the wall material.
 pub(super) struct CellFill<'a> {
     pub cells: &'a Cells,
-    pub albedo: &'a WallAlbedo,
 }
 
 /// Where a camera path is.
@@ -332,7 +273,7 @@ impl Ctx<'_> {
                 break;
             }
             beta *= if wall {
-                s.weight / fill.albedo.at(s.wi)
+                s.weight / fill.cells.albedo.at(s.wi)
             } else {
                 s.weight
             };
@@ -402,7 +343,7 @@ impl Ctx<'_> {
                 continue;
             }
             if wall {
-                f /= fill.albedo.at(wi);
+                f /= fill.cells.albedo.at(wi);
             }
             let o = b.x + ng * self.eps;
             if !matches!(
@@ -472,7 +413,7 @@ impl Ctx<'_> {
                 continue;
             }
             if wall {
-                f /= fill.albedo.at(wi);
+                f /= fill.cells.albedo.at(wi);
             }
             if !matches!(
                 self.air_ray(
@@ -496,6 +437,7 @@ impl Ctx<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::Rng;
 
     /// The camera path's wall weight is the adjoint of the photon walk's
     /// resampled wall: for two cones of directions U and V, the photon
@@ -505,7 +447,7 @@ mod tests {
     #[test]
     fn wall_weight_is_the_adjoint_of_the_photon_walks_resampling() {
         let wall = Dielectric::new(1.45, 0.3);
-        let albedo = WallAlbedo::new(&wall);
+        let albedo = crate::cells::WallAlbedo::new(&wall);
         let mut rng = Rng::new(11, 2);
         let cos_cone = 15f32.to_radians().cos();
         let omega = 2.0 * std::f32::consts::PI * (1.0 - cos_cone);
@@ -569,19 +511,5 @@ mod tests {
             );
             // (without the division by A the wall-to-air pair is 11 % low)
         }
-    }
-
-    #[test]
-    fn albedo_table_is_below_one_and_falls_towards_grazing() {
-        let a = WallAlbedo::new(&Dielectric::new(1.5, 0.3));
-        for z in [0.95f32, -0.95] {
-            let s = (1.0 - z * z).sqrt();
-            let v = a.at(Vec3::new(s, 0.0, z));
-            assert!(v > 0.85 && v <= 1.0, "{z} {v}");
-        }
-        let g = a.at(Vec3::new(0.999, 0.0, 0.04));
-        assert!(g < a.at(Vec3::new(0.3, 0.0, 0.95)), "{g}");
-        let smooth = WallAlbedo::new(&Dielectric::new(1.5, 0.0));
-        assert_eq!(smooth.at(Vec3::Z), 1.0);
     }
 }

@@ -56,7 +56,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::bvh::{Bvh, Hit};
-use super::cellular::{CellFill, WallAlbedo, check_lights};
+use super::cellular::{CellFill, check_lights};
 use super::{DeltaLight, ObjectError, ObjectScene};
 use crate::medium::Volume;
 use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
@@ -225,8 +225,6 @@ pub(super) struct Ctx<'a> {
     fd_step: f64,
     pub(super) max_events: u32,
     pub(super) unscattered_env: bool,
-    /// The wall albedo table of a cellular sample (its cells are `vol.cells`).
-    wall_albedo: Option<WallAlbedo>,
 }
 
 /// Per-thread counters.
@@ -310,13 +308,9 @@ impl<'a> Ctx<'a> {
             return Err(ObjectError::Sample(format!("eta {} must be >= 1", sf.eta)));
         }
         let bsdf = Dielectric::new(sf.eta as f32, sf.roughness as f32);
-        let wall_albedo = match &vol.cells {
-            Some(cells) => {
-                check_lights(&scene.lights, &bsdf, cells)?;
-                Some(WallAlbedo::new(&cells.wall))
-            }
-            None => None,
-        };
+        if let Some(cells) = &vol.cells {
+            check_lights(&scene.lights, &bsdf, cells)?;
+        }
         let (lo, hi) = mesh.bounds();
         let diag = (hi - lo).length();
         if !(diag.is_finite() && diag > 0.0) {
@@ -333,7 +327,6 @@ impl<'a> Ctx<'a> {
             fd_step: 1e-4,
             max_events: opts.max_events,
             unscattered_env: opts.unscattered_env,
-            wall_albedo,
         })
     }
 
@@ -378,8 +371,8 @@ impl<'a> Ctx<'a> {
     /// Radiance of channel `c` along the camera ray (o, d).
     fn radiance(&self, o: Vec3, d: Vec3, c: usize, rng: &mut WalkRng, counts: &mut Counts) -> f32 {
         let st = &mut counts.0;
-        if let (Some(cells), Some(albedo)) = (&self.vol.cells, &self.wall_albedo) {
-            let fill = CellFill { cells, albedo };
+        if let Some(cells) = &self.vol.cells {
+            let fill = CellFill { cells };
             return self.radiance_cells(&fill, o, d, c, rng, st);
         }
         st.paths += 1;
