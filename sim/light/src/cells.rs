@@ -314,10 +314,11 @@ impl Cells {
             }
         }
         start.push(blocks.len() as u32);
+        let wall = Dielectric::new(eta, roughness);
         Cells {
             period: l,
-            wall: Dielectric::new(eta, roughness),
-            albedo: WallAlbedo::new(&Dielectric::new(eta, roughness)),
+            albedo: WallAlbedo::new(&wall),
+            wall,
             porosity: measured,
             count: centres.len(),
             mean_radius,
