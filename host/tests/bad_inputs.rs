@@ -623,7 +623,6 @@ fn cases() -> Vec<(String, &'static str)> {
         format!("missing.exr {ok}"),
         format!("garbage.exr {ok}"),
         format!("empty.exr {ok}"),
-        format!("dir.exr {ok}"),
         format!("{ok} garbage.exr"),
         format!("{ok} {ok} --truth2 missing.exr"),
         format!("{ok} {ok} --block 0"),
@@ -632,6 +631,7 @@ fn cases() -> Vec<(String, &'static str)> {
     ] {
         add(format!("compare {a}"), "");
     }
+    add(format!("compare dir.exr {ok}"), "a directory");
 
     // report: also a file where the model directory should be.
     for m in ["dir.toml", "keep/notes.txt"] {

@@ -17,6 +17,9 @@ fn exr_error(path: &Path) -> impl FnOnce(exr::error::Error) -> FormatError + '_ 
 
 /// Reads the first RGB(A) layer of an EXR file as f32 (alpha ignored).
 pub fn read_rgb(path: &Path) -> Result<RgbImage, FormatError> {
+    if path.is_dir() {
+        return Err(FormatError::invalid(path, "a directory, not an EXR file"));
+    }
     if !path.is_file() {
         return Err(FormatError::invalid(path, "missing file"));
     }
