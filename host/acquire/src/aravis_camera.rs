@@ -191,6 +191,10 @@ struct Worker {
     queued: VecDeque<Option<u64>>,
     /// The software trigger whose frame is awaited, and when it was fired.
     in_flight: Option<(Option<u64>, Instant)>,
+    /// A software trigger's frame was lost: the stream is set up again
+    /// before the next arming (a camera left streaming by a killed host
+    /// can stop delivering to this one).
+    lost_frame: bool,
     /// Frames (or their failures) of the current arming not yet asked for.
     ready: VecDeque<Result<Frame, CameraError>>,
     /// A `next_frame` waiting: its deadline and where the answer goes.
@@ -264,6 +268,7 @@ impl Worker {
             software: cfg.trigger_source.eq_ignore_ascii_case("software"),
             queued: VecDeque::new(),
             in_flight: None,
+            lost_frame: false,
             ready: VecDeque::new(),
             waiter: None,
         };
@@ -369,6 +374,26 @@ impl Worker {
         }
         self.ready.clear();
         self.drain();
+        if std::mem::take(&mut self.lost_frame) {
+            // Best effort: if this fails, the retake reports the camera.
+            let _ = self.restart_stream(|_| Ok(()));
+        }
+    }
+
+    /// Stops acquisition, applies `change` (e.g. binning, which changes
+    /// the payload), and starts again on a new stream with fresh buffers.
+    fn restart_stream(
+        &mut self,
+        change: impl FnOnce(&aravis::Camera) -> Result<(), CameraError>,
+    ) -> Result<(), CameraError> {
+        self.camera.stop_acquisition().map_err(driver)?;
+        change(&self.camera)?;
+        // Finalising a GigE stream resets the camera's stream channel:
+        // drop the old one before the new one is set up.
+        self.stream = None;
+        self.stream = Some(self.camera.create_stream().map_err(driver)?);
+        self.refill(self.buffers)?;
+        self.camera.start_acquisition().map_err(driver)
     }
 
     /// How long a software trigger's frame may take.
@@ -384,6 +409,7 @@ impl Worker {
         {
             // Lost: its tag goes with it, so later frames keep theirs.
             self.in_flight = None;
+            self.lost_frame = true;
             if self.tags.pop_front().is_some() {
                 self.ready.push_back(Err(CameraError::BadFrame(format!(
                     "camera {}: no frame came for a software trigger within {:?}",
@@ -513,16 +539,8 @@ impl Worker {
         if current != (s.binning as i32, s.binning as i32) {
             if self.camera.is_binning_available().unwrap_or(false) {
                 // Binning changes the payload: restart the stream with new buffers.
-                self.camera.stop_acquisition().map_err(driver)?;
-                self.camera
-                    .set_binning(s.binning as i32, s.binning as i32)
-                    .map_err(driver)?;
-                // Finalising a GigE stream resets the camera's stream channel:
-                // drop the old one before the new one is set up.
-                self.stream = None;
-                self.stream = Some(self.camera.create_stream().map_err(driver)?);
-                self.refill(self.buffers)?;
-                self.camera.start_acquisition().map_err(driver)?;
+                let b = s.binning as i32;
+                self.restart_stream(|camera| camera.set_binning(b, b).map_err(driver))?;
             } else if s.binning != 1 {
                 return Err(unsupported(format!("binning {}", s.binning)));
             }
