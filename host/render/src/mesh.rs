@@ -543,7 +543,13 @@ mod tests {
         }
         // 8 corners, each on 3 faces; the copies weld to their originals
         assert_eq!(m.positions.len(), 24);
-        assert_eq!(m.weld.iter().collect::<std::collections::HashSet<_>>().len(), 8);
+        assert_eq!(
+            m.weld
+                .iter()
+                .collect::<std::collections::HashSet<_>>()
+                .len(),
+            8
+        );
         // a sphere of 16 x 8 facets has no crease: no vertex is split
         let s = crate::builtin::sphere(10.0, 16, 8).unwrap();
         let input = MeshInput {
