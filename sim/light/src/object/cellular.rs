@@ -39,11 +39,6 @@ use super::{DeltaLight, ObjectError, ObjectStats};
 
 /// Boundary events per path at most (a path crosses hundreds of walls).
 const MAX_BOUNDARY_EVENTS: u32 = 1_000_000;
-/// What fills the object besides the wall material.
-pub(super) struct CellFill<'a> {
-    pub cells: &'a Cells,
-}
-
 /// Where a camera path is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum At {
@@ -158,7 +153,7 @@ impl Ctx<'_> {
     /// cellular object.
     pub(super) fn radiance_cells(
         &self,
-        fill: &CellFill,
+        cells: &Cells,
         o: Vec3,
         d: Vec3,
         c: usize,
@@ -166,7 +161,6 @@ impl Ctx<'_> {
         st: &mut ObjectStats,
     ) -> f32 {
         st.paths += 1;
-        let cells = fill.cells;
         let (s_t, alb) = self.tables[c][0];
         let (mut o, mut d) = (o, d);
         let mut at = At::Out;
@@ -227,7 +221,7 @@ impl Ctx<'_> {
                         events += 1;
                         st.events += 1;
                         if !self.scene.lights.is_empty() {
-                            l += beta * alb * self.cell_vertex_lights(fill, p, c, rng, st);
+                            l += beta * alb * self.cell_vertex_lights(cells, p, c, rng, st);
                         }
                         beta *= alb;
                         if events >= self.max_events {
@@ -256,7 +250,7 @@ impl Ctx<'_> {
             let bsdf = if wall { &cells.wall } else { &self.bsdf };
             let wo = frame.to_local(-d);
             if !after_vertex {
-                l += beta * self.boundary_lights(fill, &b, &frame, ng, wall, wo, c);
+                l += beta * self.boundary_lights(cells, &b, &frame, ng, wall, wo, c);
             }
             let Some(s) = bsdf.sample_f(
                 wo,
@@ -273,7 +267,7 @@ impl Ctx<'_> {
                 break;
             }
             beta *= if wall {
-                s.weight / fill.cells.albedo.at(s.wi)
+                s.weight / cells.albedo.at(s.wi)
             } else {
                 s.weight
             };
@@ -319,7 +313,7 @@ impl Ctx<'_> {
     #[allow(clippy::too_many_arguments)]
     fn boundary_lights(
         &self,
-        fill: &CellFill,
+        cells: &Cells,
         b: &Boundary,
         frame: &Frame,
         ng: Vec3,
@@ -327,7 +321,7 @@ impl Ctx<'_> {
         wo: Vec3,
         c: usize,
     ) -> f32 {
-        let bsdf = if wall { &fill.cells.wall } else { &self.bsdf };
+        let bsdf = if wall { &cells.wall } else { &self.bsdf };
         let mut l = 0.0;
         for light in &self.scene.lights {
             let (wl, dist, e) = light.at(b.x);
@@ -343,11 +337,11 @@ impl Ctx<'_> {
                 continue;
             }
             if wall {
-                f /= fill.cells.albedo.at(wi);
+                f /= cells.albedo.at(wi);
             }
             let o = b.x + ng * self.eps;
             if !matches!(
-                self.air_ray(fill.cells, o, wl, wall, dist - 2.0 * self.eps),
+                self.air_ray(cells, o, wl, wall, dist - 2.0 * self.eps),
                 AirEnd::Free { .. }
             ) {
                 continue;
@@ -362,7 +356,7 @@ impl Ctx<'_> {
     /// boundary, the BTDF towards each light there.
     fn cell_vertex_lights(
         &self,
-        fill: &CellFill,
+        cells: &Cells,
         p: Vec3,
         c: usize,
         rng: &mut WalkRng,
@@ -375,7 +369,7 @@ impl Ctx<'_> {
             let Some(hm) = self.bvh.intersect(p, w, f32::INFINITY) else {
                 continue;
             };
-            let (b, s) = match fill.cells.first_entry(p, w, hm.t) {
+            let (b, s) = match cells.first_entry(p, w, hm.t) {
                 Some(e) => (
                     Boundary {
                         x: p + w * e.t,
@@ -399,7 +393,7 @@ impl Ctx<'_> {
             }
             st.nee += 1;
             let (frame, ng, wall) = self.frame_at(&b, w, true);
-            let bsdf = if wall { &fill.cells.wall } else { &self.bsdf };
+            let bsdf = if wall { &cells.wall } else { &self.bsdf };
             let (wl, dist, e) = light.at(b.x);
             if ng.dot(wl) <= 0.0 {
                 continue;
@@ -413,16 +407,10 @@ impl Ctx<'_> {
                 continue;
             }
             if wall {
-                f /= fill.cells.albedo.at(wi);
+                f /= cells.albedo.at(wi);
             }
             if !matches!(
-                self.air_ray(
-                    fill.cells,
-                    b.x + ng * self.eps,
-                    wl,
-                    wall,
-                    dist - 2.0 * self.eps
-                ),
+                self.air_ray(cells, b.x + ng * self.eps, wl, wall, dist - 2.0 * self.eps),
                 AirEnd::Free { .. }
             ) {
                 continue;

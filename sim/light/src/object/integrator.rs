@@ -56,7 +56,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::bvh::{Bvh, Hit};
-use super::cellular::{CellFill, check_lights};
+use super::cellular::check_lights;
 use super::{DeltaLight, ObjectError, ObjectScene};
 use crate::medium::Volume;
 use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
@@ -372,8 +372,7 @@ impl<'a> Ctx<'a> {
     fn radiance(&self, o: Vec3, d: Vec3, c: usize, rng: &mut WalkRng, counts: &mut Counts) -> f32 {
         let st = &mut counts.0;
         if let Some(cells) = &self.vol.cells {
-            let fill = CellFill { cells };
-            return self.radiance_cells(&fill, o, d, c, rng, st);
+            return self.radiance_cells(cells, o, d, c, rng, st);
         }
         st.paths += 1;
         let table = &self.tables[c];
