@@ -24,7 +24,7 @@
 
 use glam::Vec3;
 
-use crate::microfacet::{Dielectric, TransportMode};
+use crate::microfacet::Dielectric;
 use crate::rng::Rng;
 
 /// Where a line meets a cell wall.
@@ -131,10 +131,8 @@ impl WallAlbedo {
                             (i as f32 + rng.uniform()) / n as f32,
                             (j as f32 + rng.uniform()) / n as f32,
                         ];
-                        if let Some(s) =
-                            wall.sample_f(u, rng.uniform(), uv, TransportMode::Importance)
-                        {
-                            sum += s.weight.min(1.0) as f64;
+                        if let Some((_, weight)) = wall.sample_importance(u, rng.uniform(), uv) {
+                            sum += weight.min(1.0) as f64;
                         }
                     }
                 }

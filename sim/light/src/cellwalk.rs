@@ -20,7 +20,7 @@ use glam::Vec3;
 
 use crate::cells::Cells;
 use crate::medium::Volume;
-use crate::microfacet::{BsdfSample, Dielectric, TransportMode};
+use crate::microfacet::{Dielectric, TransportMode};
 use crate::rng::{WalkRng, exp1_from_bits};
 use crate::surface::HeightField;
 use crate::walk::{
@@ -181,13 +181,13 @@ impl Pass<'_> {
             touched = true;
             let local = Local::new(h.n);
             let wo = local.to_local(-d);
-            let Some(s) =
+            let Some(wi) =
                 self.cell_boundary(vol, cells, top, h.boundary, h.x, h.n, &local, wo, rng, t)
             else {
                 break CellEnd::SurfaceLoss;
             };
-            d = local.to_world(s.wi);
-            if s.wi.z > 0.0 {
+            d = local.to_world(wi);
+            if wi.z > 0.0 {
                 p = h.x + h.n * 1e-4;
                 continue;
             }
@@ -268,13 +268,13 @@ impl Pass<'_> {
             };
             let local = Local::new(n);
             let wo = local.to_local(-d);
-            let Some(s) =
+            let Some(wi) =
                 self.cell_boundary(vol, cells, top, boundary, x, n, &local, wo, rng, tally)
             else {
                 return WallEnd::Ended(CellEnd::SurfaceLoss);
             };
-            let d2 = local.to_world(s.wi);
-            if s.wi.z > 0.0 {
+            let d2 = local.to_world(wi);
+            if wi.z > 0.0 {
                 return WallEnd::Left(x, n, d2);
             }
             d = d2;
@@ -302,7 +302,7 @@ impl Pass<'_> {
         wo: Vec3,
         rng: &mut WalkRng,
         t: &mut Tally,
-    ) -> Option<BsdfSample> {
+    ) -> Option<Vec3> {
         let visible = |y: Vec3, w: Vec3| self.air_visible(vol, cells, y, n, w);
         match boundary {
             Boundary::Top => self.boundary_event_with(x, local, wo, top, true, rng, visible),
@@ -318,14 +318,11 @@ impl Pass<'_> {
                     visible,
                 );
                 for _ in 0..64 {
-                    let s = bsdf.sample_f(
-                        wo,
-                        rng.uniform(),
-                        [rng.uniform(), rng.uniform()],
-                        TransportMode::Importance,
-                    );
-                    match s {
-                        Some(s) if s.weight >= 1.0 || rng.uniform() < s.weight => return Some(s),
+                    match bsdf.sample_importance(wo, rng.uniform(), [rng.uniform(), rng.uniform()])
+                    {
+                        Some((wi, weight)) if weight >= 1.0 || rng.uniform() < weight => {
+                            return Some(wi);
+                        }
                         _ => {}
                     }
                 }

@@ -281,6 +281,38 @@ impl Dielectric {
         self.transmission_pdf(wo, wi, wm, etap)
     }
 
+    /// What the photon walks need of `sample_f` in importance mode: the
+    /// same direction from the same numbers, and the survival weight
+    /// f |cos wi| / pdf, which for visible-normal sampling is
+    /// G(wo, wi) / G1(wo), without the BSDF value and pdf.
+    #[inline]
+    pub fn sample_importance(&self, wo: Vec3, uc: f32, u: [f32; 2]) -> Option<(Vec3, f32)> {
+        if self.mf.effectively_smooth() {
+            return self
+                .sample_f(wo, uc, u, TransportMode::Importance)
+                .map(|s| (s.wi, s.weight));
+        }
+        if wo.z == 0.0 {
+            return None;
+        }
+        let wm = self.mf.sample_wm(wo, u);
+        let wi = if uc < fr_dielectric(wo.dot(wm), self.eta) {
+            let wi = reflect(wo, wm);
+            if wi.z * wo.z <= 0.0 {
+                return None;
+            }
+            wi
+        } else {
+            let (wi, _) = refract(wo, wm, self.eta)?;
+            if wi.z * wo.z >= 0.0 || wi.z == 0.0 {
+                return None;
+            }
+            wi
+        };
+        let lo = self.mf.lambda(wo);
+        Some((wi, (1.0 + lo) / (1.0 + lo + self.mf.lambda(wi))))
+    }
+
     /// Sample reflection or transmission, paired with `pdf`.
     pub fn sample_f(
         &self,
@@ -434,6 +466,33 @@ mod tests {
                 );
                 assert!(s.weight <= 1.0 + 1e-4, "importance weight {}", s.weight);
             }
+        }
+    }
+
+    #[test]
+    fn sample_importance_is_sample_f_in_importance_mode() {
+        let mut rng = Rng::new(4, 0);
+        for bsdf in [Dielectric::new(1.5, 0.3), Dielectric::new(1.0 / 1.3, 0.6)] {
+            let (mut same, mut n) = (0, 0);
+            for k in 0..4000 {
+                let wo = sph(1.55 * rng.uniform(), 6.0 * rng.uniform());
+                let wo = if k % 2 == 0 { wo } else { -wo };
+                let (uc, u) = (rng.uniform(), [rng.uniform(), rng.uniform()]);
+                let a = bsdf.sample_f(wo, uc, u, TransportMode::Importance);
+                let b = bsdf.sample_importance(wo, uc, u);
+                n += 1;
+                match (a, b) {
+                    (Some(a), Some((wi, w))) => {
+                        assert!((a.wi - wi).length() < 1e-6, "{:?} vs {wi:?}", a.wi);
+                        assert!((a.weight - w).abs() < 1e-4, "{} vs {w}", a.weight);
+                        same += 1;
+                    }
+                    (None, None) => same += 1,
+                    _ => {}
+                }
+            }
+            // only degenerate samples (a zero pdf in sample_f) may differ
+            assert!(same as f64 >= 0.999 * n as f64, "{same} of {n}");
         }
     }
 

@@ -18,7 +18,7 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
 use crate::medium::Volume;
-use crate::microfacet::{BsdfSample, Dielectric, TransportMode, fr_dielectric, refract};
+use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
 use crate::rng::{WalkRng, exp1_from_bits, mix64, unit_f32};
 use crate::sample::{COLOUR_PATTERN, TargetDesc, colour_patch_at};
 use crate::surface::HeightField;
@@ -583,7 +583,7 @@ impl Pass<'_> {
         bsdf: &Dielectric,
         splat: bool,
         rng: &mut WalkRng,
-    ) -> Option<BsdfSample> {
+    ) -> Option<Vec3> {
         self.boundary_event_with(x, local, wo, bsdf, splat, rng, |x, w| {
             self.scene.surface.visible(x, w)
         })
@@ -600,7 +600,7 @@ impl Pass<'_> {
         splat: bool,
         rng: &mut WalkRng,
         visible: impl Fn(Vec3, Vec3) -> bool,
-    ) -> Option<BsdfSample> {
+    ) -> Option<Vec3> {
         if splat {
             self.splat_with(
                 x,
@@ -609,14 +609,8 @@ impl Pass<'_> {
                 visible,
             );
         }
-        let s = bsdf.sample_f(
-            wo,
-            rng.uniform(),
-            [rng.uniform(), rng.uniform()],
-            TransportMode::Importance,
-        );
-        match s {
-            Some(s) if s.weight >= 1.0 || rng.uniform() < s.weight => Some(s),
+        match bsdf.sample_importance(wo, rng.uniform(), [rng.uniform(), rng.uniform()]) {
+            Some((wi, weight)) if weight >= 1.0 || rng.uniform() < weight => Some(wi),
             _ => None,
         }
     }
@@ -846,16 +840,16 @@ impl Pass<'_> {
             SurfaceKind::Dielectric(b) => *b,
         };
         // entry: surface reflection towards the cameras, then reflect or refract
-        let Some(s) = self.boundary_event(x, &local, wo, &bsdf, true, rng) else {
+        let Some(wi) = self.boundary_event(x, &local, wo, &bsdf, true, rng) else {
             t.surface_loss += 1;
             return None;
         };
-        if s.wi.z > 0.0 {
+        if wi.z > 0.0 {
             t.reflected += 1;
             return None;
         }
         t.entered += 1;
-        let d = local.to_world(s.wi);
+        let d = local.to_world(wi);
         Some((x + d * 1e-4, d))
     }
 
@@ -1006,16 +1000,16 @@ impl Pass<'_> {
         }
         let local = Local::new(hf.normal(x.x, x.y));
         let wo = local.to_local(-d);
-        let Some(s) = self.boundary_event(x, &local, wo, bsdf, splat, rng) else {
+        let Some(wi) = self.boundary_event(x, &local, wo, bsdf, splat, rng) else {
             return Crossing::Ended(End::SurfaceLoss);
         };
-        if s.wi.z > 0.0 {
+        if wi.z > 0.0 {
             if let Some(g) = self.exits {
                 g.record(x);
             }
             return Crossing::Ended(End::Exited);
         }
-        Crossing::Inside(local.to_world(s.wi))
+        Crossing::Inside(local.to_world(wi))
     }
 }
 
