@@ -10,8 +10,9 @@
 //! a homogeneous preset has no LRF to render it): the pixels compared, and
 //! of them the mean, the terminator band's (|n·l| < 0.25) mean and the
 //! 8 x 8-pixel block means with the Monte Carlo noise of each. A 4 mm
-//! apple slab lit from behind is compared the same way with sim-light's
-//! `qhm sim render-object` (slab-apple-back.json, slab/).
+//! apple slab lit from behind and from above is compared the same way with
+//! sim-light's `qhm sim render-object` (slab-apple-back.json,
+//! slab-apple-front.json, slab/).
 //!
 //! The tolerances are what qhm reaches now (docs/render.md's table), with
 //! a margin for the CI-scale render (12,000 surface samples); each case
@@ -246,6 +247,13 @@ fn apple_thin_slab_back_lit_matches_sim_light() {
     // A 4 mm slab lit from below, against `qhm sim render-object` of the
     // same mesh (tools/cache_sim.py): the light through a thin part.
     check("slab-apple-back", &[0, 1, 2], 0.05, 0.0, 0.2);
+}
+
+#[test]
+fn apple_thin_slab_front_lit_matches_sim_light() {
+    // The same slab lit from above: light that a half-space would send
+    // back leaves through the far face (the slab's multipole images).
+    check("slab-apple-front", &[0, 1, 2], 0.03, 0.0, 0.06);
 }
 
 #[test]

@@ -6,7 +6,7 @@
 //!
 //! OPTIONS: `--rd dipole|transport` (R_d's light transport; default the
 //! preset's), `--lambertian-exit` (f_v = 1 without the boundary's exit
-//! shape), `--mesh builtin` (default sphere).
+//! shape), `--mesh BUILTIN|FILE.obj|FILE.ply` (default sphere).
 
 use std::path::Path;
 
@@ -79,7 +79,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         i += 1;
     }
     let file = SceneFile::load(toml)?;
-    let mut scene = file.builtin_scene(&mesh)?;
+    let mut scene = if mesh.ends_with(".obj") || mesh.ends_with(".ply") {
+        let (scale, uv) = file.object()?;
+        qhm_render::Scene::lit(qhm_render::Mesh::load(Path::new(&mesh), scale, uv)?)
+    } else {
+        file.builtin_scene(&mesh)?
+    };
     file.apply_scene(&mut scene)?;
     let mut settings = RenderSettings::default();
     file.apply_settings(&mut settings)?;

@@ -43,6 +43,10 @@ pub struct SurfaceSamples {
     /// smooth surface, into the mesh), weighted by luminance; unnormalised,
     /// zero without light. Empty = straight in along the normal.
     pub entry: Vec<Vec3>,
+    /// The object's thickness behind each point: the distance along the
+    /// inward normal to the next surface, INFINITY where there is none
+    /// (see [`compute_thickness`]). Empty = unknown (infinite).
+    pub thickness: Vec<f32>,
     /// Poisson-disk radius used, mm.
     pub radius: f32,
 }
@@ -183,6 +187,26 @@ pub fn poisson_disk(mesh: &Mesh, target: usize, seed: u64) -> SurfaceSamples {
     out.area = vec![share; out.pos.len()];
     out.irradiance = vec![Vec3::ZERO; out.pos.len()];
     out
+}
+
+/// Fills `samples.thickness`: a ray from each point along its inward
+/// normal (the mesh's winding) to the surface it meets first.
+pub fn compute_thickness(scene: &Scene, samples: &mut SurfaceSamples) {
+    samples.thickness = samples
+        .pos
+        .par_iter()
+        .zip(&samples.normal)
+        .map(|(&p, &n)| {
+            let ray = Ray {
+                o: p - n * scene.eps,
+                d: -n,
+            };
+            scene
+                .bvh
+                .intersect(&ray, f32::INFINITY)
+                .map_or(f32::INFINITY, |h| h.t + scene.eps)
+        })
+        .collect();
 }
 
 /// Fills `samples.irradiance` from the scene's lights (parallel).
