@@ -235,18 +235,10 @@ impl RdTable {
                     for j in 0..nphi {
                         let phi = (j as f32 + 0.5) * dphi;
                         let dx = Vec3::new(r * phi.cos(), r * phi.sin(), 0.0);
-                        sum += kw
-                            * self
-                                .flux_factors(
-                                    dx,
-                                    r,
-                                    Vec3::Z,
-                                    wi,
-                                    f32::INFINITY,
-                                    Vec3::Z,
-                                    Vec3::ZERO,
-                                )
-                                .0;
+                        let half_space = f32::INFINITY;
+                        let (g, _) =
+                            self.flux_factors(dx, r, Vec3::Z, wi, half_space, Vec3::Z, Vec3::ZERO);
+                        sum += kw * g;
                     }
                 }
                 sum
@@ -375,7 +367,6 @@ impl RdTable {
         } else {
             0.0
         };
-        let two_l = (s(thick) + g.z_v - g.z_r) * 2.0;
         for &(t, w) in set.depths {
             // Source k: s_r = x_i + t z_r w_i; its image s_v = s_r + q n_i.
             let zr = g.z_r * t;
@@ -413,6 +404,7 @@ impl RdTable {
             let along_r = s(ndx) + zr * cos_t;
             let h_r = s(h) - zr * nw;
             let u_r = s(udx) - zr * uw;
+            let two_l = (s(thick) + g.z_v - g.z_r) * 2.0;
             let w = Vec4::select(h_r.cmpgt(Vec4::ZERO), s(slab_w), Vec4::ZERO);
             for k in SLAB_IMAGES {
                 // the pair shifted by m_r = 2 k L along n_i
