@@ -112,9 +112,13 @@ fn links(mesh: &Mesh, normals: &[Vec3], basis: &[(Vec3, Vec3)]) -> Vec<Link> {
             *weights.entry(key).or_default() += 0.5 * cot;
         }
     }
+    // In key order: a sum over the map's own (per-process random) order
+    // differs in its last bits from run to run, and so would every render.
+    let mut weights: Vec<((u32, u32), f64)> = weights.into_iter().collect();
+    weights.sort_unstable_by_key(|w| w.0);
     // Obtuse triangles can make a cotangent weight negative; a small floor
     // keeps the operator definite.
-    let mean = weights.values().map(|w| w.abs()).sum::<f64>() / weights.len().max(1) as f64;
+    let mean = weights.iter().map(|w| w.1.abs()).sum::<f64>() / weights.len().max(1) as f64;
     let floor = 1e-3 * mean.max(f64::MIN_POSITIVE);
     let stiff = 10.0 * mean.max(f64::MIN_POSITIVE);
     // Welded copies whose normals differ by more than a crease (a box's
