@@ -103,9 +103,8 @@ pub fn prepare<M: Material>(
             field.at(&scene.mesh, t as usize, b1, b2)
         })
         .collect();
-    if settings.geometry {
-        points::compute_thickness(scene, &mut samples);
-    }
+    // Whatever `geometry` says: `relight` may turn it on later.
+    points::compute_thickness(scene, &mut samples);
     stats.secs_samples = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let entry_shape = (settings.mode.has_global()

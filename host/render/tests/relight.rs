@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
 use qhm_render::materials::{Homogeneous, preset};
-use qhm_render::prepare::prepare;
+use qhm_render::prepare::{Prepared, prepare};
 use qhm_render::render::render_prepared;
 use qhm_render::{Image, Light, RenderSettings, RenderStats, Scene};
 
@@ -19,20 +19,27 @@ fn lit(to_light: Vec3) -> Scene {
     scene
 }
 
-fn render(scene: &Scene, prep: &qhm_render::prepare::Prepared, s: &RenderSettings) -> Image {
+/// Pass 1 for `scene`, fresh or, given one, re-lit; and its image.
+fn pass_one(scene: &Scene, s: &RenderSettings, relit: Option<Prepared>) -> (Prepared, Image) {
     let material = Homogeneous {
         dipole: preset("marble").unwrap(),
     };
-    render_prepared(scene, &material, s, prep, &AtomicBool::new(false))
+    let stats = &mut RenderStats::default();
+    let prep = match relit {
+        Some(mut p) => {
+            p.relight(scene, &material, s, stats).unwrap();
+            p
+        }
+        None => prepare(scene, &material, s, stats).unwrap(),
+    };
+    let image = render_prepared(scene, &material, s, &prep, &AtomicBool::new(false))
         .unwrap()
-        .0
+        .0;
+    (prep, image)
 }
 
 #[test]
 fn relit_pass_one_renders_as_a_fresh_one() {
-    let material = Homogeneous {
-        dipole: preset("marble").unwrap(),
-    };
     let settings = RenderSettings {
         width: 64,
         height: 64,
@@ -45,30 +52,9 @@ fn relit_pass_one_renders_as_a_fresh_one() {
         lit(Vec3::new(0.3, -0.5, 1.0)),
         lit(Vec3::new(-0.4, 0.6, -0.7)),
     );
-    let mut prep = prepare(
-        &from_above,
-        &material,
-        &settings,
-        &mut RenderStats::default(),
-    )
-    .unwrap();
-    let before = render(&from_above, &prep, &settings);
-    prep.relight(
-        &from_below,
-        &material,
-        &settings,
-        &mut RenderStats::default(),
-    )
-    .unwrap();
-    let relit = render(&from_below, &prep, &settings);
-    let fresh = prepare(
-        &from_below,
-        &material,
-        &settings,
-        &mut RenderStats::default(),
-    )
-    .unwrap();
-    let fresh = render(&from_below, &fresh, &settings);
+    let (prep, before) = pass_one(&from_above, &settings, None);
+    let (_, relit) = pass_one(&from_below, &settings, Some(prep));
+    let (_, fresh) = pass_one(&from_below, &settings, None);
     assert!(
         relit.pixels != before.pixels,
         "the new light changes nothing"

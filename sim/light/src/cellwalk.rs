@@ -25,7 +25,7 @@ use crate::rng::{WalkRng, exp1_from_bits};
 use crate::surface::HeightField;
 use crate::walk::{
     Local, MAX_EVENTS, MAX_INTERFACES, Pass, SurfaceKind, Tally, geometric_events,
-    sample_uniform_sphere_bits,
+    sample_uniform_sphere_bits, surviving_direction,
 };
 
 /// Which boundary a hit is on.
@@ -317,16 +317,7 @@ impl Pass<'_> {
                     |wi| bsdf.f(wo, wi, TransportMode::Importance) * inv_a,
                     visible,
                 );
-                for _ in 0..64 {
-                    match bsdf.sample_importance(wo, rng.uniform(), [rng.uniform(), rng.uniform()])
-                    {
-                        Some((wi, weight)) if weight >= 1.0 || rng.uniform() < weight => {
-                            return Some(wi);
-                        }
-                        _ => {}
-                    }
-                }
-                None
+                (0..64).find_map(|_| surviving_direction(bsdf, wo, rng))
             }
         }
     }

@@ -355,6 +355,18 @@ impl Local {
     }
 }
 
+/// A direction sampled from the rough dielectric for a particle carrying
+/// importance, kept by Russian roulette on its survival weight (the
+/// single-scattering lobe's masked share ends the particle): None when it
+/// ends or the sample is degenerate.
+#[inline]
+pub(crate) fn surviving_direction(bsdf: &Dielectric, wo: Vec3, rng: &mut WalkRng) -> Option<Vec3> {
+    match bsdf.sample_importance(wo, rng.uniform(), [rng.uniform(), rng.uniform()]) {
+        Some((wi, weight)) if weight >= 1.0 || rng.uniform() < weight => Some(wi),
+        _ => None,
+    }
+}
+
 /// Uniform direction on the sphere, paired with `uniform_sphere_pdf`.
 #[inline(always)]
 pub fn sample_uniform_sphere(u: [f32; 2]) -> Vec3 {
@@ -609,10 +621,7 @@ impl Pass<'_> {
                 visible,
             );
         }
-        match bsdf.sample_importance(wo, rng.uniform(), [rng.uniform(), rng.uniform()]) {
-            Some((wi, weight)) if weight >= 1.0 || rng.uniform() < weight => Some(wi),
-            _ => None,
-        }
+        surviving_direction(bsdf, wo, rng)
     }
 
     /// Next-event estimate from a scattering vertex `p` (isotropic phase)
