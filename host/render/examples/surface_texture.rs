@@ -34,10 +34,11 @@ fn main() {
     let secs_field = t.elapsed().as_secs_f64();
     let jumps = field.frame_jumps(&mesh, 10.0);
     println!(
-        "{object}: {} inner edges, {} turn the frame by more than 10 deg ({:.2} %); field {secs_field:.3} s",
+        "{object}: {} inner edges off creases, {} turn the frame by more than 10 deg ({:.2} %), {} on creases; field {secs_field:.3} s",
         jumps.edges,
         jumps.over,
-        100.0 * jumps.share()
+        100.0 * jumps.share(),
+        jumps.creases
     );
     let t = Instant::now();
     let features = Features::of_material(&model);

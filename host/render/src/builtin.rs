@@ -11,6 +11,10 @@ use crate::error::{MeshError, RenderError};
 use crate::mesh::Mesh;
 use crate::mesh_input::MeshInput;
 use crate::teapot_data::{PATCHES, POINTS};
+use crate::watertight::{cap_holes, union_surface};
+
+/// The built-in teapot's grid, in teapot units (0.84 mm at 12 mm per unit).
+pub const TEAPOT_CELL: f32 = 0.07;
 
 /// Names accepted by [`builtin_mesh`].
 pub const BUILTIN_NAMES: [&str; 4] = ["slab", "sphere", "teapot", "bread"];
@@ -20,7 +24,7 @@ pub fn builtin_mesh(name: &str) -> Result<Mesh, RenderError> {
     let mesh = match name {
         "slab" => slab(60.0, 10.0),
         "sphere" => sphere(20.0, 96, 48),
-        "teapot" => teapot(12.0, 12),
+        "teapot" => teapot(12.0, TEAPOT_CELL),
         "bread" => bread(12.0),
         _ => return Err(RenderError::UnknownBuiltin(name.to_string())),
     };
@@ -96,12 +100,39 @@ pub fn sphere(radius: f32, n_phi: usize, n_theta: usize) -> Result<Mesh, MeshErr
     Mesh::build(m, None)
 }
 
-/// The Utah teapot: every Bezier patch sampled on an `n` x `n` grid,
-/// `scale` mm per teapot unit.
-pub fn teapot(scale: f32, n: usize) -> Result<Mesh, MeshError> {
+/// The Utah teapot as a closed solid, `scale` mm per teapot unit, its
+/// surface on a grid of `cell` teapot units.
+///
+/// Newell's patches are not a solid: the spout is open at its tip, the lid
+/// sits in the rim's opening without meeting it, and the handle and spout
+/// end inside the body. Each hole gets a flat cap, which makes body, lid,
+/// handle and spout closed shells, and their union is remeshed as one
+/// watertight surface. The lips of the rim and the spout (ridges 0.1
+/// units wide, thinner than the grid can draw) are left out: the lid rests
+/// on a flat shoulder and the spout ends flat.
+pub fn teapot(scale: f32, cell: f32) -> Result<Mesh, MeshError> {
+    let mut shells = teapot_patches(&teapot_solid_patches(), scale, 16);
+    cap_holes(&mut shells, 1e-4 * scale);
+    Mesh::build(union_surface(&shells, cell * scale), None)
+}
+
+/// Newell's patches without the rim (the first four) and the spout's lip
+/// (patches 18 and 19).
+fn teapot_solid_patches() -> Vec<[u16; 16]> {
+    PATCHES
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !(*k < 4 || *k == 18 || *k == 19))
+        .map(|(_, p)| *p)
+        .collect()
+}
+
+/// Bezier patches of the teapot's control points, each sampled on an
+/// `n` x `n` grid, `scale` mm per teapot unit, with their own normals.
+pub fn teapot_patches(patches: &[[u16; 16]], scale: f32, n: usize) -> MeshInput {
     let mut m = MeshInput::default();
     let mut normals = Vec::new();
-    for patch in PATCHES.iter() {
+    for patch in patches {
         let cp: Vec<Vec3> = patch
             .iter()
             .map(|&i| Vec3::from(POINTS[i as usize - 1]) * scale)
@@ -125,13 +156,17 @@ pub fn teapot(scale: f32, n: usize) -> Result<Mesh, MeshError> {
             for j in 0..n as u32 {
                 let a = base + i * row + j;
                 for t in [[a, a + 1, a + row + 1], [a, a + row + 1, a + row]] {
-                    m.triangles.push(orient(&m.positions, &normals, t));
+                    // A triangle at a pole has two corners in one place.
+                    let [p, q, r] = t.map(|k| Vec3::from(m.positions[k as usize]));
+                    if (q - p).cross(r - p).length_squared() > 0.0 {
+                        m.triangles.push(orient(&m.positions, &normals, t));
+                    }
                 }
             }
         }
     }
     m.normals = Some(normals);
-    Mesh::build(m, None)
+    m
 }
 
 /// Swaps the winding when it disagrees with the vertex normals, so face and
@@ -274,13 +309,77 @@ mod tests {
 
     #[test]
     fn teapot_has_the_classic_size() {
-        let m = teapot(1.0, 8).unwrap();
+        let cell = 0.05;
+        let m = teapot(1.0, cell).unwrap();
         let (lo, hi) = m.bounds();
-        // Spout tip at x = 3.45..3.525, handle at x = -3, lid knob at z = 3.15.
-        assert!((hi.x - 3.4).abs() < 0.15, "{hi}");
-        assert!((lo.x + 3.0).abs() < 0.05, "{lo}");
-        assert!((hi.z - 3.15).abs() < 1e-3 && lo.z.abs() < 1e-3);
-        assert!(m.triangles.len() > 32 * 8 * 8 * 2 - 500);
+        // Spout's end at x = 3.3 (without its lip), handle at x = -3, lid
+        // knob at z = 3.15.
+        assert!((hi.x - 3.3).abs() < cell, "{hi}");
+        assert!((lo.x + 3.0).abs() < cell, "{lo}");
+        assert!((hi.z - 3.15).abs() < cell && lo.z.abs() < cell, "{lo} {hi}");
+    }
+
+    #[test]
+    fn teapot_is_one_closed_solid() {
+        let m = teapot(12.0, TEAPOT_CELL).unwrap();
+        let w: Vec<u32> = m.weld.clone();
+        let mut directed = std::collections::HashMap::new();
+        for t in &m.triangles {
+            let t = t.map(|i| w[i as usize]);
+            for k in 0..3 {
+                *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+            }
+        }
+        let open = directed
+            .iter()
+            .filter(|&(&(a, b), &c)| c != 1 || directed.get(&(b, a)) != Some(&1))
+            .count();
+        assert_eq!(
+            open, 0,
+            "edges not shared by exactly two faces, once each way"
+        );
+        // The patches alone leave the spout, the rim and the handle's and
+        // spout's ends open: the check can fail.
+        let patches = Mesh::build(teapot_patches(&PATCHES, 12.0, 16), None).unwrap();
+        let mut directed = std::collections::HashMap::new();
+        for t in &patches.triangles {
+            let t = t.map(|i| patches.weld[i as usize]);
+            for k in 0..3 {
+                *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+            }
+        }
+        assert!(
+            directed
+                .keys()
+                .any(|&(a, b)| !directed.contains_key(&(b, a)))
+        );
+        // The union encloses less than the capped shells summed (the handle's
+        // and spout's ends inside the body count once), but not much less.
+        let volume = |positions: &[Vec3], triangles: &[[u32; 3]]| -> f32 {
+            triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| positions[i as usize]);
+                    a.dot(b.cross(c)) / 6.0
+                })
+                .sum()
+        };
+        let mut shells = teapot_patches(&teapot_solid_patches(), 12.0, 16);
+        cap_holes(&mut shells, 1e-3);
+        let summed = volume(
+            &shells
+                .positions
+                .iter()
+                .map(|p| Vec3::from(*p))
+                .collect::<Vec<_>>(),
+            &shells.triangles,
+        );
+        let union = volume(&m.positions, &m.triangles);
+        eprintln!(
+            "teapot: {} triangles, {union} mm^3 against {summed} summed",
+            m.triangles.len()
+        );
+        assert!(union < 0.998 * summed && union > 0.95 * summed);
     }
 
     #[test]

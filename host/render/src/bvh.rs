@@ -314,7 +314,7 @@ mod tests {
 
     #[test]
     fn bvh_agrees_with_brute_force() {
-        let m = crate::builtin::teapot(10.0, 4).unwrap();
+        let m = crate::builtin::teapot(10.0, 0.1).unwrap();
         let bvh = Bvh::new(&m);
         let mut s = 1u32;
         let mut rnd = || {

@@ -43,6 +43,7 @@ pub mod settings;
 pub mod tangent_field;
 mod teapot_data;
 pub mod texture_synthesis;
+pub mod watertight;
 
 pub use camera::Camera;
 pub use error::{MeshError, RenderError};

@@ -693,7 +693,7 @@ impl SeamEnergy {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::builtin::{sphere, teapot};
+    use crate::builtin::{TEAPOT_CELL, sphere, teapot};
     use qhm_formats::RgbImage;
     use qhm_model::{DipoleParams, ProfileModel};
 
@@ -825,7 +825,7 @@ mod tests {
     #[test]
     fn a_lookup_continues_the_nearest_patch_and_blends_across_cuts() {
         let m = Blobs::new(32);
-        let mesh = teapot(12.0, 12).unwrap();
+        let mesh = teapot(12.0, TEAPOT_CELL).unwrap();
         let tex = synthesized(&mesh, &m);
         let (w, h) = (tex.src_width as f32, tex.src_height as f32);
         let mut blended = 0;
