@@ -27,6 +27,7 @@ pub mod distrib;
 mod error;
 pub mod export;
 pub mod film;
+pub mod interreflection;
 pub mod light;
 pub mod material;
 pub mod materials;

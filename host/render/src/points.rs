@@ -68,14 +68,14 @@ pub enum Entrance<'a, M: Material> {
 
 impl<M: Material> Entrance<'_, M> {
     /// The index of refraction light enters through.
-    fn eta(&self) -> f64 {
+    pub(crate) fn eta(&self) -> f64 {
         match self {
             Entrance::Model(m, _) => m.dipole().eta,
             Entrance::Fresnel(eta, _) => *eta,
         }
     }
 
-    fn eval(&self, wi_local: Vec3) -> Vec3 {
+    pub(crate) fn eval(&self, wi_local: Vec3) -> Vec3 {
         use qhm_model::fresnel::{fresnel_dielectric, normal_transmittance};
         let (base, eta, shape) = match self {
             Entrance::Model(m, shape) => {
@@ -218,7 +218,7 @@ pub fn compute_thickness(scene: &Scene, samples: &mut SurfaceSamples) {
 pub fn compute_irradiance<M: Material>(
     scene: &Scene,
     samples: &mut SurfaceSamples,
-    entrance: Entrance<'_, M>,
+    entrance: &Entrance<'_, M>,
     env_samples: usize,
     seed: u64,
 ) {
@@ -236,7 +236,7 @@ pub fn compute_irradiance<M: Material>(
         .into_par_iter()
         .map(|i| {
             let t = tangent.get(i).copied().unwrap_or(Vec3::ZERO);
-            irradiance_at(scene, pos[i], normal[i], t, &entrance, &env_set, eta)
+            irradiance_at(scene, pos[i], normal[i], t, entrance, &env_set, eta)
         })
         .collect();
     (*irradiance, *entry) = lit.into_iter().unzip();
@@ -312,7 +312,7 @@ pub fn irradiance_at<M: Material>(
 
 /// The direction light from `wi` (towards the light) travels after
 /// refraction into a smooth surface of normal `n` (on the light's side).
-fn refract_in(wi: Vec3, n: Vec3, eta: f32) -> Vec3 {
+pub(crate) fn refract_in(wi: Vec3, n: Vec3, eta: f32) -> Vec3 {
     let cos_i = wi.dot(n).clamp(0.0, 1.0);
     let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (eta * eta)).max(0.0).sqrt();
     -wi / eta + n * (cos_i / eta - cos_t)

@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 use crate::boundary::{EntryShape, ExitShape};
 use crate::error::RenderError;
+use crate::interreflection::{Exitance, Interreflection};
 use crate::material::Material;
 use crate::octree::{DipoleTree, RdTable};
 use crate::points::{self, Entrance, SurfaceSamples};
@@ -111,14 +112,6 @@ pub fn prepare<M: Material>(
         && (material.smooth_boundary() || settings.mode.plain_dipole()))
     .then(|| EntryShape::new(&dipole));
     stats.secs_tree += t.elapsed().as_secs_f64();
-    let tree = light_pass(
-        scene,
-        material,
-        settings,
-        &mut samples,
-        entry_shape.as_ref(),
-        stats,
-    );
     let t = Instant::now();
     let hole = rd_hole(material, settings);
     let rd = rd_table(
@@ -129,6 +122,15 @@ pub fn prepare<M: Material>(
         settings.geometry,
     );
     stats.secs_tree += t.elapsed().as_secs_f64();
+    let tree = light_pass(
+        scene,
+        material,
+        settings,
+        &mut samples,
+        entry_shape.as_ref(),
+        &rd,
+        stats,
+    );
     Ok(Prepared {
         samples,
         tree,
@@ -145,14 +147,21 @@ pub fn prepare<M: Material>(
     })
 }
 
+/// Bounces of light between the object's parts: the second adds about a
+/// fifth of the first on an apple teapot.
+const BOUNCES: usize = 2;
+
 /// Pass 1 after the samples: their irradiance (from the scene's lights and
-/// env map, through the mode's entrance) and the octree over them.
+/// env map, through the mode's entrance, and one bounce of the object's own
+/// global exitance) and the octree over them.
+#[allow(clippy::too_many_arguments)]
 fn light_pass<M: Material>(
     scene: &Scene,
     material: &M,
     settings: &RenderSettings,
     samples: &mut SurfaceSamples,
     entry_shape: Option<&EntryShape>,
+    rd: &RdTable,
     stats: &mut RenderStats,
 ) -> DipoleTree {
     let dipole = material.dipole();
@@ -165,14 +174,33 @@ fn light_pass<M: Material>(
     points::compute_irradiance(
         scene,
         samples,
-        entrance,
+        &entrance,
         settings.env_samples,
         settings.seed,
     );
     stats.secs_irradiance = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let tree = DipoleTree::new(samples);
-    stats.secs_tree = t.elapsed().as_secs_f64();
+    let mut tree = DipoleTree::new(samples);
+    stats.secs_tree += t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let mut returned = 0;
+    if let Some(ir) = Interreflection::trace(scene, samples, settings.indirect_rays, settings.seed)
+    {
+        let direct = (samples.irradiance.clone(), samples.entry.clone());
+        for _ in 0..BOUNCES {
+            let exitance = Exitance {
+                tree: &tree,
+                rd,
+                epsilon: settings.epsilon,
+                r_min: settings.local_radius_mm,
+            };
+            ir.bounce(samples, &direct, &exitance, &entrance);
+            tree = DipoleTree::new(samples);
+        }
+        returned = ir.count();
+    }
+    stats.secs_interreflection = t.elapsed().as_secs_f64();
+    stats.rays_returned = returned;
     stats.surface_samples = samples.pos.len();
     stats.octree_nodes = tree.node_count();
     tree
@@ -237,7 +265,6 @@ impl Prepared {
         } else {
             None
         };
-        self.tree = light_pass(scene, material, settings, &mut self.samples, entry, stats);
         let hole = rd_hole(material, settings);
         if hole != self.hole
             || settings.near_field != self.near_field
@@ -254,6 +281,15 @@ impl Prepared {
             self.near_field = settings.near_field;
             self.geometry = settings.geometry;
         }
+        self.tree = light_pass(
+            scene,
+            material,
+            settings,
+            &mut self.samples,
+            entry,
+            &self.rd,
+            stats,
+        );
         Ok(())
     }
 }

@@ -43,6 +43,7 @@
 //! local_radius_mm = 0.0
 //! near_field = 6.0              # irradiance interpolation radius, in sample radii (0 = off)
 //! geometry = true               # the dipole's exit-plane factor on curved/thin objects
+//! indirect_rays = 8             # rays per sample for light between parts (0 = off)
 //! seed = 1
 //! ```
 
@@ -191,6 +192,7 @@ pub struct RenderToml {
     pub local_radius_mm: Option<f32>,
     pub near_field: Option<f32>,
     pub geometry: Option<bool>,
+    pub indirect_rays: Option<usize>,
     pub seed: Option<u64>,
     pub synthesis: Option<bool>,
 }
@@ -391,6 +393,7 @@ impl SceneFile {
         s.local_radius_mm = r.local_radius_mm.unwrap_or(s.local_radius_mm);
         s.near_field = r.near_field.unwrap_or(s.near_field);
         s.geometry = r.geometry.unwrap_or(s.geometry);
+        s.indirect_rays = r.indirect_rays.unwrap_or(s.indirect_rays);
         s.seed = r.seed.unwrap_or(s.seed);
         s.synthesis = r.synthesis.unwrap_or(s.synthesis);
         s.validate()

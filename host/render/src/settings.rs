@@ -74,6 +74,9 @@ pub struct RenderSettings {
     /// The dipole's exit-plane geometry factor on curved and thin objects
     /// ([`crate::octree::RdTable::with_geometry`]).
     pub geometry: bool,
+    /// Rays per surface sample for the light the object sends itself (one
+    /// bounce of the global term, [`crate::interreflection`]; 0 = none).
+    pub indirect_rays: usize,
     pub seed: u64,
     /// Synthesize the material texture on the surface (else tile it over
     /// the mesh's texture coordinates).
@@ -97,6 +100,7 @@ impl Default for RenderSettings {
             local_radius_mm: 0.0,
             near_field: NEAR_FIELD_SPREAD,
             geometry: true,
+            indirect_rays: 8,
             seed: 1,
             synthesis: true,
             synth: SynthSettings::default(),
@@ -134,6 +138,12 @@ impl RenderSettings {
         }
         if !(self.near_field.is_finite() && (0.0..=100.0).contains(&self.near_field)) {
             return bad(format!("near_field {} must be in 0..=100", self.near_field));
+        }
+        if self.indirect_rays > 1024 {
+            return bad(format!(
+                "indirect_rays {} must be <= 1024",
+                self.indirect_rays
+            ));
         }
         if self.env_samples > 65536 || self.light_samples > 65536 {
             return bad("env_samples/light_samples must be <= 65536".into());
@@ -208,6 +218,9 @@ pub struct RenderStats {
     pub octree_nodes: usize,
     pub secs_samples: f64,
     pub secs_irradiance: f64,
+    /// One bounce between the object's parts, and how many rays came back.
+    pub secs_interreflection: f64,
+    pub rays_returned: usize,
     pub secs_tree: f64,
     pub secs_synthesis: f64,
     pub secs_pixels: f64,

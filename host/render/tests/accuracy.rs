@@ -26,7 +26,7 @@ fn octree_matches_brute_force_within_one_percent() {
     compute_irradiance(
         &scene,
         &mut samples,
-        Entrance::Model(&material, None),
+        &Entrance::Model(&material, None),
         16,
         5,
     );

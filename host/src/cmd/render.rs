@@ -227,6 +227,10 @@ fn print_bench(
     println!("octree nodes     {}", st.octree_nodes);
     println!("samples          {:.3} s", st.secs_samples);
     println!("irradiance       {:.3} s", st.secs_irradiance);
+    println!(
+        "interreflection  {:.3} s ({} rays came back)",
+        st.secs_interreflection, st.rays_returned
+    );
     println!("octree build     {:.3} s", st.secs_tree);
     println!("synthesis        {:.3} s", st.secs_synthesis);
     println!(
