@@ -12,7 +12,10 @@
 //! 8 x 8-pixel block means with the Monte Carlo noise of each. A 4 mm
 //! apple slab lit from behind and from above is compared the same way with
 //! sim-light's `qhm sim render-object` (slab-apple-back.json,
-//! slab-apple-front.json, slab/).
+//! slab-apple-front.json, slab/), and so is the closed built-in teapot of
+//! apple lit from the front and from behind (teapot-apple-front.json,
+//! teapot-apple-back.json, 2 x 256 spp), where the handle and spout get
+//! light back from the body.
 //!
 //! The tolerances are what qhm reaches now (docs/render.md's table), with
 //! a margin for the CI-scale render (12,000 surface samples); each case
@@ -31,7 +34,8 @@ struct Case {
     name: String,
     toml: String,
     material: String,
-    /// A mesh file under tests/data/render_reference; None = the built-in sphere.
+    /// A mesh file under tests/data/render_reference, or `builtin:NAME`;
+    /// None = the built-in sphere.
     mesh: Option<String>,
     pixels: Vec<Vec<u8>>,
     mean: [f64; 3],
@@ -113,18 +117,31 @@ impl Material for Before {
 }
 
 fn render<M: Material>(case: &Case, material: &M, before: bool) -> Image {
+    render_with(case, material, |s| {
+        if before {
+            s.near_field = 0.0;
+            s.geometry = false;
+        }
+    })
+}
+
+fn render_with<M: Material>(
+    case: &Case,
+    material: &M,
+    change: impl FnOnce(&mut RenderSettings),
+) -> Image {
     let file = SceneFile::parse(&case.toml, None).unwrap();
-    let mut scene = match &case.mesh {
-        Some(m) => Scene::lit(Mesh::load(&data_dir().join(m), 1.0, None).unwrap()),
+    let mut scene = match case.mesh.as_deref() {
+        Some(m) => match m.strip_prefix("builtin:") {
+            Some(name) => file.builtin_scene(name).unwrap(),
+            None => Scene::lit(Mesh::load(&data_dir().join(m), 1.0, None).unwrap()),
+        },
         None => file.builtin_scene("sphere").unwrap(),
     };
     file.apply_scene(&mut scene).unwrap();
     let mut settings = RenderSettings::default();
     file.apply_settings(&mut settings).unwrap();
-    if before {
-        settings.near_field = 0.0;
-        settings.geometry = false;
-    }
+    change(&mut settings);
     render_scene(&scene, material, &settings).unwrap()
 }
 
@@ -254,6 +271,39 @@ fn apple_thin_slab_front_lit_matches_sim_light() {
     // The same slab lit from above: light that a half-space would send
     // back leaves through the far face (the slab's multipole images).
     check("slab-apple-front", &[0, 1, 2], 0.03, 0.0, 0.06);
+}
+
+/// The closed teapot against `qhm sim render-object` of the same mesh:
+/// its handle and spout face the body and get light back from it, which
+/// the render must carry (`indirect_rays`); without it the case fails.
+fn check_teapot(case: &str, mean: f64, blocks: f64) {
+    let c = load(case);
+    let model = MaterialModel::homogeneous(preset(&c.material).unwrap());
+    let now = metrics(&c, &render_with(&c, &model, |_| {}));
+    eprintln!(
+        "{case}: mean {:.3?} blocks {:.3?}",
+        now.mean, now.block_rmse
+    );
+    within(&now, &[0, 1, 2], mean, 0.0, blocks).unwrap_or_else(|e| panic!("{case}: {e}"));
+    let alone = metrics(&c, &render_with(&c, &model, |s| s.indirect_rays = 0));
+    eprintln!(
+        "{case} without light between parts: mean {:.3?} blocks {:.3?}",
+        alone.mean, alone.block_rmse
+    );
+    assert!(
+        within(&alone, &[0, 1, 2], mean, 0.0, blocks).is_err(),
+        "{case}: passes without the light between parts too"
+    );
+}
+
+#[test]
+fn apple_teapot_front_lit_matches_sim_light() {
+    check_teapot("teapot-apple-front", 0.06, 0.07);
+}
+
+#[test]
+fn apple_teapot_back_lit_matches_sim_light() {
+    check_teapot("teapot-apple-back", 0.11, 0.14);
 }
 
 #[test]
