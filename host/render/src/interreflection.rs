@@ -27,7 +27,7 @@ use crate::points::{Entrance, SurfaceSamples, frame, refract_in, to_local};
 use crate::scene::Scene;
 
 /// Samples whose exitance stands for the surface's, at most.
-const PROBES: usize = 4096;
+const PROBES: usize = 2048;
 
 /// Where one sample's ray met the object: the direction it left along and
 /// the probe whose exitance comes back.
@@ -207,7 +207,7 @@ impl Probes {
     }
 
     /// The nearest probe within two cells whose normal is within 60° of
-    /// `facing`.
+    /// `facing`, distance off the plane through `p` weighing more.
     fn nearest_facing(&self, p: Vec3, facing: Vec3) -> Option<u32> {
         let c = key(p, self.cell);
         let mut best: Option<(f32, u32)> = None;
@@ -221,7 +221,11 @@ impl Probes {
                         if self.normal[k as usize].dot(facing) < 0.5 {
                             continue;
                         }
-                        let d = self.pos[k as usize].distance_squared(p);
+                        // Off the hit's plane counts four times over: a
+                        // parallel surface nearby (a lid over its
+                        // shoulder) is another surface.
+                        let off = self.pos[k as usize] - p;
+                        let d = off.length_squared() + 4.0 * off.dot(facing).powi(2);
                         if best.is_none_or(|(b, kb)| d < b || (d == b && k < kb)) {
                             best = Some((d, k));
                         }
