@@ -500,6 +500,7 @@ mod tests {
             assert!(random.frame_jumps(&m, 10.0).share() > 0.5, "{name}");
             // So does the box projection's frame, which switches axis.
             let boxed = frame_jumps(&m, |t| box_projection_tangent(m.corners(t)), 10.0);
+            eprintln!("{name} box projection: {boxed:?}");
             assert!(boxed.share() > 0.01, "{name}: {boxed:?}");
         }
     }
