@@ -1,4 +1,4 @@
-//! Light the object sends itself: one bounce of the global term between
+//! Light the object sends itself: bounces of the global term between
 //! parts that see each other (a teapot's handle and its body). Without it
 //! the inside of a handle gets only what the lights send it; an apple
 //! teapot under one light is then 4.5 % dark over all and 10 % on its
@@ -9,7 +9,8 @@
 //! back is the global exitance there as a diffuse emitter, M / π, taken
 //! from the nearest probe (a subset of the samples, M from the octree)
 //! that faces the ray; it enters like any other light, through the
-//! entrance. A convex object's rays all escape: its samples keep their
+//! entrance. Each bounce takes the exitance from the octree the previous
+//! one left. A convex object's rays all escape: its samples keep their
 //! irradiance bit for bit and no probe is evaluated.
 
 use std::collections::HashMap;

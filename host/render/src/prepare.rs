@@ -148,12 +148,12 @@ pub fn prepare<M: Material>(
 }
 
 /// Bounces of light between the object's parts: the second adds about a
-/// fifth of the first on an apple teapot.
+/// sixth of the first on an apple teapot.
 const BOUNCES: usize = 2;
 
 /// Pass 1 after the samples: their irradiance (from the scene's lights and
-/// env map, through the mode's entrance, and one bounce of the object's own
-/// global exitance) and the octree over them.
+/// env map, through the mode's entrance, and [`BOUNCES`] of the object's
+/// own global exitance) and the octree over them.
 #[allow(clippy::too_many_arguments)]
 fn light_pass<M: Material>(
     scene: &Scene,

@@ -74,8 +74,8 @@ pub struct RenderSettings {
     /// The dipole's exit-plane geometry factor on curved and thin objects
     /// ([`crate::octree::RdTable::with_geometry`]).
     pub geometry: bool,
-    /// Rays per surface sample for the light the object sends itself (one
-    /// bounce of the global term, [`crate::interreflection`]; 0 = none).
+    /// Rays per surface sample for the light the object sends itself (two
+    /// bounces of the global term, [`crate::interreflection`]; 0 = none).
     pub indirect_rays: usize,
     pub seed: u64,
     /// Synthesize the material texture on the surface (else tile it over
@@ -170,7 +170,14 @@ impl RenderSettings {
         } else {
             0
         };
-        pixels * BYTES_PER_PIXEL + samples * BYTES_PER_SURFACE_SAMPLE
+        // The light between parts keeps, per sample, its direct light (24 B),
+        // a list (24 B) and up to one 16 B entry per ray that comes back.
+        let indirect = if self.indirect_rays > 0 {
+            48 + 16 * self.indirect_rays as u64
+        } else {
+            0
+        };
+        pixels * BYTES_PER_PIXEL + samples * (BYTES_PER_SURFACE_SAMPLE + indirect)
     }
 
     /// The memory estimate, refused when it exceeds `available` bytes
@@ -218,7 +225,7 @@ pub struct RenderStats {
     pub octree_nodes: usize,
     pub secs_samples: f64,
     pub secs_irradiance: f64,
-    /// One bounce between the object's parts, and how many rays came back.
+    /// The light between the object's parts, and how many rays came back.
     pub secs_interreflection: f64,
     pub rays_returned: usize,
     pub secs_tree: f64,
@@ -245,7 +252,7 @@ mod tests {
             ..RenderSettings::default()
         };
         let need = s.memory_estimate();
-        assert_eq!(need, 16384 * 16384 * 26 + 30_000 * 256);
+        assert_eq!(need, 16384 * 16384 * 26 + 30_000 * (256 + 48 + 16 * 8));
         assert_eq!(human_bytes(need), "6.5 GiB");
         assert_eq!(s.check_memory(None).unwrap(), need);
         assert_eq!(s.check_memory(Some(need)).unwrap(), need);

@@ -53,10 +53,14 @@ impl Grid {
 
 /// The surface of the union of `shells`, closed and consistently oriented
 /// triangle meshes (outward normals by winding; `normals`, if given, per
-/// vertex, else the faces'), on a grid of `cell` (in the shells' units). Features thinner
-/// than a cell are thickened to one. The result has no normals:
-/// [`crate::mesh::Mesh::build`] makes them, split at creases.
+/// vertex, else the faces'), on a grid of `cell` (in the shells' units).
+/// Features thinner than a cell are thickened to one. The result has no
+/// normals: [`crate::mesh::Mesh::build`] makes them, split at creases. It
+/// is empty for empty shells or a cell that is not a positive number.
 pub fn union_surface(shells: &MeshInput, cell: f32) -> MeshInput {
+    if shells.triangles.is_empty() || !(cell.is_finite() && cell > 0.0) {
+        return MeshInput::default();
+    }
     let pos: Vec<DVec3> = shells
         .positions
         .iter()
