@@ -187,10 +187,10 @@ fn line_states(grid: &Grid, axis: usize, crossings: &[Crossing]) -> Vec<bool> {
 }
 
 /// Turns grid points inside until no face of a cell has its inside corners
-/// on one diagonal and its outside corners on the other. Surface nets would
-/// join four quads at such a face's edge (a part thinner than a cell, as a
-/// rim's lip); thickening the part by a grid point keeps it and makes the
-/// surface a manifold.
+/// on one diagonal and its outside corners on the other. The contouring
+/// would join four quads at such a face's edge (a part thinner than a
+/// cell, as a rim's lip); thickening the part by a grid point keeps it and
+/// makes the surface a manifold.
 fn thicken_ambiguous_faces(grid: &Grid, inside: &mut [bool]) {
     let n = grid.n;
     loop {
