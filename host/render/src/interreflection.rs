@@ -326,7 +326,7 @@ mod tests {
         };
         let entrance = Entrance::Model(&material, None);
         let tree = DipoleTree::new(&samples);
-        let radius = (samples.area[0] / std::f32::consts::PI).sqrt();
+        let radius = (samples.mean_area() / std::f32::consts::PI).sqrt();
         let rd = RdTable::new(&material.dipole(), radius);
         let exitance = Exitance {
             tree: &tree,

@@ -1215,7 +1215,7 @@ mod tests {
         let mesh = crate::builtin::slab(60.0, 20.0).unwrap();
         let mut s = crate::points::poisson_disk(&mesh, 20_000, 3);
         s.irradiance = vec![Vec3::ONE; s.pos.len()];
-        let radius = (s.area[0] / std::f32::consts::PI).sqrt();
+        let radius = (s.mean_area() / std::f32::consts::PI).sqrt();
         (s, radius, crate::points::poisson_disk(&mesh, 3000, 11))
     }
 
@@ -1251,6 +1251,30 @@ mod tests {
         assert!((m1 - total).abs() < 0.01 * total, "{m1} vs {total}");
         assert!((m0 - total).abs() < 0.02 * total, "{m0} vs {total}");
         assert!(sd1 < 0.5 * sd0, "scatter {sd1} vs plain {sd0}");
+    }
+
+    #[test]
+    fn local_areas_take_out_the_darts_density_patches() {
+        // The same slab with every sample standing for total / n: the
+        // sum follows the darts' denser and sparser patches.
+        let p = marble();
+        let (s, radius, probe) = lit_slab();
+        let mut equal = s.clone();
+        equal.area = vec![s.mean_area(); s.pos.len()];
+        let t = RdTable::new(&p, 2.0 * radius).with_near_field(6.0 * radius);
+        let stats = |samples: &SurfaceSamples| {
+            let v = top_exitance(&DipoleTree::new(samples), &t, &probe);
+            let m = v.iter().sum::<f32>() / v.len() as f32;
+            let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f32>() / v.len() as f32).sqrt();
+            (m, sd / m)
+        };
+        let ((m_local, sd_local), (m_equal, sd_equal)) = (stats(&s), stats(&equal));
+        eprintln!("scatter of M: {sd_local} with local areas, {sd_equal} with equal ones");
+        assert!(
+            (m_local - m_equal).abs() < 0.01 * m_equal,
+            "{m_local} vs {m_equal}"
+        );
+        assert!(sd_local < 0.7 * sd_equal, "{sd_local} vs {sd_equal}");
     }
 
     #[test]

@@ -226,7 +226,7 @@ fn rd_table<M: Material>(
     // Every sample stands for an equal share A of the area; the kernel is
     // averaged over a disk of twice that radius, which hides the sample
     // pattern (the sub-mm near field is the LRF's part of eq. 4 anyway).
-    let radius = samples.area.first().map_or(0.0, |a| (a / PI).sqrt());
+    let radius = (samples.mean_area() / PI).sqrt();
     let rd = RdTable::with_hole(&material.dipole(), KERNEL_SPREAD * radius, hole)
         .with_near_field(near_field * radius);
     if geometry {

@@ -31,7 +31,7 @@ fn octree_matches_brute_force_within_one_percent() {
         5,
     );
     let tree = DipoleTree::new(&samples);
-    let radius = (samples.area[0] / std::f32::consts::PI).sqrt();
+    let radius = (samples.mean_area() / std::f32::consts::PI).sqrt();
     let rd = RdTable::new(&material.dipole(), radius)
         .with_near_field(qhm_render::settings::NEAR_FIELD_SPREAD * radius)
         .with_geometry(&material.dipole());
