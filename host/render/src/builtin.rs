@@ -321,60 +321,31 @@ mod tests {
 
     #[test]
     fn teapot_is_one_closed_solid() {
-        let m = teapot(12.0, TEAPOT_CELL).unwrap();
-        let w: Vec<u32> = m.weld.clone();
-        let mut directed = std::collections::HashMap::new();
-        for t in &m.triangles {
-            let t = t.map(|i| w[i as usize]);
-            for k in 0..3 {
-                *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
-            }
-        }
-        let open = directed
-            .iter()
-            .filter(|&(&(a, b), &c)| c != 1 || directed.get(&(b, a)) != Some(&1))
-            .count();
-        assert_eq!(
-            open, 0,
+        use crate::watertight::tests::{is_closed, volume};
+        // A mesh with its coincident vertices joined.
+        let welded = |m: &Mesh| MeshInput {
+            positions: m.positions.iter().map(|p| p.to_array()).collect(),
+            triangles: m
+                .triangles
+                .iter()
+                .map(|t| t.map(|i| m.weld[i as usize]))
+                .collect(),
+            ..Default::default()
+        };
+        let m = welded(&teapot(12.0, TEAPOT_CELL).unwrap());
+        assert!(
+            is_closed(&m),
             "edges not shared by exactly two faces, once each way"
         );
         // The patches alone leave the spout, the rim and the handle's and
         // spout's ends open: the check can fail.
         let patches = Mesh::build(teapot_patches(&PATCHES, 12.0, 16), None).unwrap();
-        let mut directed = std::collections::HashMap::new();
-        for t in &patches.triangles {
-            let t = t.map(|i| patches.weld[i as usize]);
-            for k in 0..3 {
-                *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
-            }
-        }
-        assert!(
-            directed
-                .keys()
-                .any(|&(a, b)| !directed.contains_key(&(b, a)))
-        );
+        assert!(!is_closed(&welded(&patches)));
         // The union encloses less than the capped shells summed (the handle's
         // and spout's ends inside the body count once), but not much less.
-        let volume = |positions: &[Vec3], triangles: &[[u32; 3]]| -> f32 {
-            triangles
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|i| positions[i as usize]);
-                    a.dot(b.cross(c)) / 6.0
-                })
-                .sum()
-        };
         let mut shells = teapot_patches(&teapot_solid_patches(), 12.0, 16);
         cap_holes(&mut shells, 1e-3);
-        let summed = volume(
-            &shells
-                .positions
-                .iter()
-                .map(|p| Vec3::from(*p))
-                .collect::<Vec<_>>(),
-            &shells.triangles,
-        );
-        let union = volume(&m.positions, &m.triangles);
+        let (union, summed) = (volume(&m), volume(&shells));
         eprintln!(
             "teapot: {} triangles, {union} mm^3 against {summed} summed",
             m.triangles.len()

@@ -13,8 +13,6 @@
 //! one left. A convex object's rays all escape: its samples keep their
 //! irradiance bit for bit and no probe is evaluated.
 
-use std::collections::HashMap;
-
 use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -24,7 +22,7 @@ use crate::bvh::Ray;
 use crate::light::luminance;
 use crate::material::Material;
 use crate::octree::{DipoleTree, QueryStats, RdTable};
-use crate::points::{Entrance, SurfaceSamples, frame, refract_in, to_local};
+use crate::points::{Entrance, PointGrid, SurfaceSamples, frame, refract_in, to_local};
 use crate::scene::Scene;
 
 /// Samples whose exitance stands for the surface's, at most.
@@ -51,6 +49,8 @@ pub struct Exitance<'a> {
 pub struct Interreflection {
     returns: Vec<Vec<Return>>,
     probes: Probes,
+    /// The probes that any ray reached: only their exitance is needed.
+    reached: Vec<bool>,
     rays: usize,
 }
 
@@ -100,14 +100,16 @@ impl Interreflection {
                     .collect()
             })
             .collect();
-        returns
-            .iter()
-            .any(|r| !r.is_empty())
-            .then_some(Interreflection {
-                returns,
-                probes,
-                rays,
-            })
+        let mut reached = vec![false; probes.index.len()];
+        for r in returns.iter().flatten() {
+            reached[r.probe as usize] = true;
+        }
+        reached.contains(&true).then_some(Interreflection {
+            returns,
+            probes,
+            reached,
+            rays,
+        })
     }
 
     /// How many rays came back.
@@ -125,14 +127,10 @@ impl Interreflection {
         exitance: &Exitance,
         entrance: &Entrance<'_, M>,
     ) {
-        let mut needed = vec![false; self.probes.index.len()];
-        for r in self.returns.iter().flatten() {
-            needed[r.probe as usize] = true;
-        }
         let m: Vec<Vec3> = (0..self.probes.index.len())
             .into_par_iter()
             .map(|p| {
-                if !needed[p] {
+                if !self.reached[p] {
                     return Vec3::ZERO;
                 }
                 let i = self.probes.index[p];
@@ -179,8 +177,7 @@ struct Probes {
     index: Vec<usize>,
     pos: Vec<Vec3>,
     normal: Vec<Vec3>,
-    cell: f32,
-    grid: HashMap<[i32; 3], Vec<u32>>,
+    grid: PointGrid,
 }
 
 impl Probes {
@@ -194,52 +191,32 @@ impl Probes {
         let cell = (area / index.len() as f32).sqrt().max(f32::MIN_POSITIVE);
         let pos: Vec<Vec3> = index.iter().map(|&i| samples.pos[i]).collect();
         let normal: Vec<Vec3> = index.iter().map(|&i| samples.normal[i]).collect();
-        let mut grid: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
-        for (k, p) in pos.iter().enumerate() {
-            grid.entry(key(*p, cell)).or_default().push(k as u32);
-        }
         Probes {
+            grid: PointGrid::new(&pos, cell),
             index,
             pos,
             normal,
-            cell,
-            grid,
         }
     }
 
     /// The nearest probe within two cells whose normal is within 60° of
     /// `facing`, distance off the plane through `p` weighing more.
     fn nearest_facing(&self, p: Vec3, facing: Vec3) -> Option<u32> {
-        let c = key(p, self.cell);
         let mut best: Option<(f32, u32)> = None;
-        for dz in -2..=2 {
-            for dy in -2..=2 {
-                for dx in -2..=2 {
-                    let Some(list) = self.grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        continue;
-                    };
-                    for &k in list {
-                        if self.normal[k as usize].dot(facing) < 0.5 {
-                            continue;
-                        }
-                        // Off the hit's plane counts four times over: a
-                        // parallel surface nearby (a lid over its
-                        // shoulder) is another surface.
-                        let off = self.pos[k as usize] - p;
-                        let d = off.length_squared() + 4.0 * off.dot(facing).powi(2);
-                        if best.is_none_or(|(b, kb)| d < b || (d == b && k < kb)) {
-                            best = Some((d, k));
-                        }
-                    }
-                }
+        for k in self.grid.near(p, 2) {
+            if self.normal[k as usize].dot(facing) < 0.5 {
+                continue;
+            }
+            // Off the hit's plane counts four times over: a parallel
+            // surface nearby (a lid over its shoulder) is another surface.
+            let off = self.pos[k as usize] - p;
+            let d = off.length_squared() + 4.0 * off.dot(facing).powi(2);
+            if best.is_none_or(|(b, kb)| d < b || (d == b && k < kb)) {
+                best = Some((d, k));
             }
         }
         best.map(|(_, k)| k)
     }
-}
-
-fn key(p: Vec3, cell: f32) -> [i32; 3] {
-    (p / cell).floor().as_ivec3().to_array()
 }
 
 #[cfg(test)]

@@ -332,7 +332,7 @@ pub fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
 }
 
 /// Maps each vertex to the id of the first vertex within `tol` (grid hash).
-fn weld_ids(positions: &[Vec3], tol: f32) -> Vec<u32> {
+pub(crate) fn weld_ids(positions: &[Vec3], tol: f32) -> Vec<u32> {
     let inv = 1.0 / tol.max(f32::MIN_POSITIVE);
     let mut map: HashMap<[i64; 3], u32> = HashMap::with_capacity(positions.len());
     positions

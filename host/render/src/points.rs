@@ -210,37 +210,23 @@ fn local_areas(pos: &[Vec3], normal: &[Vec3], total: f32, radius: f32) -> Vec<f3
     let n = pos.len();
     let share = total / n.max(1) as f32;
     let rho = DENSITY_RADII * radius;
-    let mut grid: std::collections::HashMap<[i32; 3], Vec<u32>> = Default::default();
-    let key = |p: Vec3| (p / rho).floor().as_ivec3().to_array();
-    for (i, p) in pos.iter().enumerate() {
-        grid.entry(key(*p)).or_default().push(i as u32);
-    }
+    let grid = PointGrid::new(pos, rho);
     let smooth_cos = 25f32.to_radians().cos();
     // None where the neighbourhood is not smooth.
     let density: Vec<Option<f32>> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let c = key(pos[i]);
             let mut sum = 0.0;
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                            continue;
-                        };
-                        for &j in list {
-                            let j = j as usize;
-                            let s = pos[j].distance_squared(pos[i]) / (rho * rho);
-                            if s >= 1.0 {
-                                continue;
-                            }
-                            if normal[j].dot(normal[i]) < smooth_cos {
-                                return None;
-                            }
-                            sum += (1.0 - s) * (1.0 - s);
-                        }
-                    }
+            for j in grid.near(pos[i], 1) {
+                let j = j as usize;
+                let s = pos[j].distance_squared(pos[i]) / (rho * rho);
+                if s >= 1.0 {
+                    continue;
                 }
+                if normal[j].dot(normal[i]) < smooth_cos {
+                    return None;
+                }
+                sum += (1.0 - s) * (1.0 - s);
             }
             Some(sum)
         })
@@ -258,6 +244,40 @@ fn local_areas(pos: &[Vec3], normal: &[Vec3], total: f32, radius: f32) -> Vec<f3
         .iter()
         .map(|d| d.map_or(share, |d| scale / d.max(f32::MIN_POSITIVE)))
         .collect()
+}
+
+/// Points hashed into cubes of a given side, for the points near a place.
+pub(crate) struct PointGrid {
+    cell: f32,
+    cells: std::collections::HashMap<[i32; 3], Vec<u32>>,
+}
+
+impl PointGrid {
+    pub(crate) fn new(pos: &[Vec3], cell: f32) -> PointGrid {
+        let mut grid = PointGrid {
+            cell,
+            cells: Default::default(),
+        };
+        for (i, p) in pos.iter().enumerate() {
+            grid.cells.entry(grid.key(*p)).or_default().push(i as u32);
+        }
+        grid
+    }
+
+    fn key(&self, p: Vec3) -> [i32; 3] {
+        (p / self.cell).floor().as_ivec3().to_array()
+    }
+
+    /// The points in the cubes within `reach` cubes of `p`'s along each
+    /// axis (a superset of those within `reach` sides), cube by cube.
+    pub(crate) fn near(&self, p: Vec3, reach: i32) -> impl Iterator<Item = u32> + '_ {
+        let c = self.key(p);
+        (-reach..=reach)
+            .flat_map(move |dz| (-reach..=reach).map(move |dy| (dz, dy)))
+            .flat_map(move |(dz, dy)| (-reach..=reach).map(move |dx| [dx, dy, dz]))
+            .filter_map(move |[dx, dy, dz]| self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]))
+            .flat_map(|list| list.iter().copied())
+    }
 }
 
 /// The radius of [`local_areas`]'s density estimate, in Poisson radii.

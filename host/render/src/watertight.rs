@@ -14,6 +14,7 @@ use std::collections::HashMap;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 
+use crate::mesh::weld_ids;
 use crate::mesh_input::MeshInput;
 
 /// Where a grid line crosses a shell: its coordinate along the line, +1 on
@@ -367,14 +368,8 @@ fn cell_vertex(grid: &Grid, cell: usize, cuts: &[&EdgeCut]) -> Vec3 {
 /// joined within `tol`) gets a fan of triangles to its centroid, wound
 /// against the loop's own faces and with a flat normal of its own.
 pub fn cap_holes(m: &mut MeshInput, tol: f32) {
-    let key = |p: [f32; 3]| p.map(|c| (c / tol).round() as i64);
-    let mut welded: HashMap<[i64; 3], u32> = HashMap::new();
-    let ids: Vec<u32> = m
-        .positions
-        .iter()
-        .enumerate()
-        .map(|(i, p)| *welded.entry(key(*p)).or_insert(i as u32))
-        .collect();
+    let pos: Vec<Vec3> = m.positions.iter().map(|p| Vec3::from(*p)).collect();
+    let ids = weld_ids(&pos, tol);
     // Directed edges used once and never in reverse are boundary edges.
     let mut directed: HashMap<(u32, u32), u32> = HashMap::new();
     for t in &m.triangles {
@@ -435,7 +430,7 @@ pub fn cap_holes(m: &mut MeshInput, tol: f32) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::builtin::sphere;
     use std::f32::consts::PI;
@@ -458,7 +453,7 @@ mod tests {
         m
     }
 
-    fn volume(m: &MeshInput) -> f32 {
+    pub(crate) fn volume(m: &MeshInput) -> f32 {
         m.triangles
             .iter()
             .map(|t| {
@@ -469,7 +464,7 @@ mod tests {
     }
 
     /// Every edge in exactly two faces, once each way.
-    fn is_closed(m: &MeshInput) -> bool {
+    pub(crate) fn is_closed(m: &MeshInput) -> bool {
         let mut directed: HashMap<(u32, u32), u32> = HashMap::new();
         for t in &m.triangles {
             for k in 0..3 {
