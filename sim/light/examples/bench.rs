@@ -20,7 +20,7 @@ fn main() -> Result<(), sim_light::Error> {
     let r = sim_light::bench::run_with(photons, medium.as_deref(), &threads, pose)?;
     for row in &r.rows {
         println!(
-            "{:28} {} thr: {:8.0} paths/s, {:6.1} M events/s wall ({:5.1} M/s/thread), {:6.1} events/path, {:5.1} M null/s, {:6.1} M events per CPU s, {:6.1} wall events/path",
+            "{:28} {} thr: {:8.0} paths/s, {:6.1} M events/s wall ({:5.1} M/s/thread), {:6.2} events/path, {:5.1} M null/s, {:6.2} M events per CPU s, {:6.1} wall events/path",
             row.medium,
             row.threads,
             row.paths_per_s,
