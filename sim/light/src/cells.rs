@@ -108,6 +108,20 @@ fn floor_i(x: f32) -> i32 {
     i - (x < i as f32) as i32
 }
 
+/// floor(x) as a float, the value of `floor_i(x) as f32`, without a
+/// conversion to an integer and back where |x| < 2^22: adding and
+/// subtracting 1.5 * 2^23 rounds x to the nearest integer.
+#[inline(always)]
+fn floor_f(x: f32) -> f32 {
+    const M: f32 = 12_582_912.0;
+    if x.abs() < 4_194_304.0 {
+        let r = (x + M) - M;
+        r - (r > x) as i32 as f32
+    } else {
+        floor_i(x) as f32
+    }
+}
+
 /// Bins of the albedo tables over |cos theta|.
 const ALBEDO_BINS: usize = 64;
 /// Samples per bin of the albedo tables.
@@ -347,7 +361,7 @@ impl Cells {
     #[inline(always)]
     fn locate_cell(&self, p: Vec3) -> (Vec3, [usize; 3]) {
         let l = self.period;
-        let f = |x: f32| floor_i(x * self.inv_l) as f32 * l;
+        let f = |x: f32| floor_f(x * self.inv_l) * l;
         let q = p - Vec3::new(f(p.x), f(p.y), f(p.z));
         let i = |x: f32| ((x * self.inv_g) as i32).clamp(0, self.ng - 1) as usize;
         (q, [i(q.x), i(q.y), i(q.z)])
