@@ -96,6 +96,13 @@ fn argmax(v: [f32; LANES]) -> usize {
 /// keeps (longer lists take one grid lookup per overlapping cell).
 const MAX_SWEEP: usize = 16;
 
+/// Side of a grid cell in mean sphere radii, where the lists fit in
+/// LIST_BYTES: fewer cells per flight against more spheres per cell. The
+/// bench (M collisions per CPU s) measured 1.5 best: bread 4.58 at 1,
+/// 4.76 at 1.5, 4.65 at 2; rice-cake 2.09, 2.14, 2.07 (sponge is held by
+/// LIST_BYTES).
+const GRID_RADII: f32 = 1.5;
+
 /// Memory the grid's lists may take (see `Cells::build`): twice a core's
 /// 2 MB L2 measured best overall (`qhm sim bench`: sponge 4.1 M collisions
 /// per CPU s against 3.1 M at 2 MB, bread equal, rice-cake 1.4 against 1.5).
@@ -255,10 +262,10 @@ impl Cells {
             centres.push([c[0], c[1], c[2], r]);
         }
         let measured = filled as f64 / (m * m * m) as f64;
-        // grid: cells about the mean radius wide, at most 128 per side, and
-        // coarser where the lists would outgrow LIST_BYTES: the lookups of a
-        // walk land all over the tile, and a cache miss costs more than the
-        // tests of a longer list
+        // grid: cells about 1.5 mean radii wide (GRID_RADII), at most 128
+        // per side, and coarser where the lists would outgrow LIST_BYTES:
+        // the lookups of a walk land all over the tile, and a cache miss
+        // costs more than the tests of a longer list
         let mean_radius = 0.5 * (r0 + r1);
         let list_bytes = |ng: i32| {
             let g = (l / ng as f32) as f64;
@@ -278,7 +285,7 @@ impl Cells {
             let cells = (ng as f64).powi(3);
             16.0 * (per_sphere + cells * (LANES - 1) as f64 / 2.0) + 4.0 * cells
         };
-        let mut ng = ((l / mean_radius).floor() as i32).clamp(1, 128);
+        let mut ng = ((l / (GRID_RADII * mean_radius)).floor() as i32).clamp(1, 128);
         while ng > 1 && list_bytes(ng) > LIST_BYTES {
             ng -= 1;
         }
