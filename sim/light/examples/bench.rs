@@ -1,15 +1,26 @@
 //! The transport benchmark as a release binary:
-//! `cargo run --release -p sim-light --example bench [photons] [--pose]`.
+//! `cargo run --release -p sim-light --example bench [photons] [--pose]
+//! [--medium NAME] [--threads N]` (one medium of `bench::BENCH_MEDIA`, or
+//! one thread count, for profiling; all media on 1 and 2 threads by default).
 fn main() -> Result<(), sim_light::Error> {
-    let photons = std::env::args()
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(200_000);
-    let pose = std::env::args().any(|a| a == "--pose");
-    let r = sim_light::bench::run(photons, pose)?;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    let photons = args.first().and_then(|s| s.parse().ok()).unwrap_or(200_000);
+    let pose = args.iter().any(|a| a == "--pose");
+    let medium = value("--medium");
+    let threads: Vec<usize> = match value("--threads").and_then(|s| s.parse().ok()) {
+        Some(n) => vec![n],
+        None => vec![1, 2],
+    };
+    let r = sim_light::bench::run_with(photons, medium.as_deref(), &threads, pose)?;
     for row in &r.rows {
         println!(
-            "{:28} {} thr: {:8.0} paths/s, {:6.1} M events/s wall ({:5.1} M/s/thread), {:6.1} events/path, {:5.1} M null/s, {:6.1} M events per CPU s",
+            "{:28} {} thr: {:8.0} paths/s, {:6.1} M events/s wall ({:5.1} M/s/thread), {:6.2} events/path, {:5.1} M null/s, {:6.2} M events per CPU s, {:6.1} wall events/path",
             row.medium,
             row.threads,
             row.paths_per_s,
@@ -17,7 +28,8 @@ fn main() -> Result<(), sim_light::Error> {
             row.events_per_s_per_core / 1e6,
             row.mean_events_per_path,
             row.null_events_per_s / 1e6,
-            row.events_per_cpu_s.unwrap_or(0.0) / 1e6
+            row.events_per_cpu_s.unwrap_or(0.0) / 1e6,
+            row.wall_events_per_path,
         );
     }
     println!(

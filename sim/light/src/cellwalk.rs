@@ -20,12 +20,12 @@ use glam::Vec3;
 
 use crate::cells::Cells;
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, TransportMode};
+use crate::microfacet::{Dielectric, ResampledLobe, TransportMode};
 use crate::rng::{WalkRng, exp1_from_bits};
 use crate::surface::HeightField;
 use crate::walk::{
     Local, MAX_EVENTS, MAX_INTERFACES, Pass, SurfaceKind, Tally, geometric_events,
-    sample_uniform_sphere_bits, surviving_direction,
+    sample_uniform_sphere_bits,
 };
 
 /// Which boundary a hit is on.
@@ -317,7 +317,10 @@ impl Pass<'_> {
                     |wi| bsdf.f(wo, wi, TransportMode::Importance) * inv_a,
                     visible,
                 );
-                (0..64).find_map(|_| surviving_direction(bsdf, wo, rng))
+                let lobe = ResampledLobe::new(bsdf, wo);
+                (0..64).find_map(|_| {
+                    lobe.try_sample(rng.uniform(), [rng.uniform(), rng.uniform()], rng.uniform())
+                })
             }
         }
     }
