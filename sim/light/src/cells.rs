@@ -382,9 +382,16 @@ impl Cells {
         (q, (z * n + y) * n + x)
     }
 
+    /// The first and one-past-last index in `blocks` of a grid cell's list.
+    #[inline(always)]
+    fn span(&self, cell: usize) -> (usize, usize) {
+        (self.start[cell] as usize, self.start[cell + 1] as usize)
+    }
+
     #[inline(always)]
     fn list(&self, cell: usize) -> &[Block] {
-        &self.blocks[self.start[cell] as usize..self.start[cell + 1] as usize]
+        let (b0, b1) = self.span(cell);
+        &self.blocks[b0..b1]
     }
 
     /// Whether `p` lies in the air of a cell.
@@ -464,8 +471,8 @@ impl Cells {
             let cell = (wi[2] as usize * n + wi[1] as usize) * n + wi[0] as usize;
             let shift = Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32) * l;
             let o = q0 - shift;
-            let (b0, b1) = (self.start[cell] as usize, self.start[cell + 1] as usize);
-            for (i, s) in self.blocks[b0..b1].iter().enumerate() {
+            let b0 = self.span(cell).0;
+            for (i, s) in self.list(cell).iter().enumerate() {
                 let ox = lanes(|j| o.x - s.x[j]);
                 let oy = lanes(|j| o.y - s.y[j]);
                 let oz = lanes(|j| o.z - s.z[j]);
@@ -571,11 +578,8 @@ impl Cells {
         while jumps < 256 {
             let x = p + d * t;
             let (q, ci) = self.locate_cell(x);
-            let (b0, b1) = {
-                let cell = (ci[2] * n + ci[1]) * n + ci[0];
-                (self.start[cell] as usize, self.start[cell + 1] as usize)
-            };
-            let list = &self.blocks[b0..b1];
+            let cell = (ci[2] * n + ci[1]) * n + ci[0];
+            let (b0, list) = (self.span(cell).0, self.list(cell));
             let base = x - q; // tile origin of x
             let sweep = list.len() <= MAX_SWEEP;
             // per lane: the furthest exit of a sphere containing x, and the
