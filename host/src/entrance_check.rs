@@ -1,9 +1,12 @@
 //! The fitted entrance function against the simulated sample's true one:
 //! at every laser direction the fit measured, f(w_i) (per channel, 1 at the
-//! vertical) beside the Monte Carlo's tally of the share of a parallel beam
-//! that refracts into the volume, relative to the vertical
-//! (`sim_light::entrance`). The simulator's sample has one index of
-//! refraction, so its entrance function is the same in every channel.
+//! vertical) beside the Monte Carlo's tallies relative to the vertical's
+//! (`sim_light::entrance`): the diffuse exitance per incident flux, which
+//! is what f must be (the paper measures f as that ratio of stripe images,
+//! and the renderer takes f as how much more an oblique beam returns, its
+//! global term scaled back to normal incidence's total), and the share of
+//! the beam that refracts into the volume. The two differ where an oblique
+//! beam, entering shallower, loses less of its light in the volume.
 
 use anyhow::{Result, bail};
 use qhm_model::MaterialModel;
@@ -18,25 +21,26 @@ pub struct EntranceCheck {
     pub phi_deg: f64,
     /// The model's measured f, R/G/B.
     pub fitted: [f64; 3],
-    /// The true f(θ)/f(0) and its standard error.
+    /// The true entering share relative to the vertical's, f(θ)/f(0), and
+    /// its standard error (green; the sample has one index).
     pub truth: f64,
     pub truth_err: f64,
     /// The smooth surface's T(θ)/T(0) at the sample's index.
     pub fresnel: f64,
     /// The true diffuse exitance per incident flux relative to the
-    /// vertical's, R/G/B, and its standard error.
+    /// vertical's, R/G/B, and its standard error: what f is judged against.
     pub exitance: [f64; 3],
     pub exitance_err: [f64; 3],
 }
 
 impl EntranceCheck {
-    /// fitted / truth - 1, per channel.
+    /// fitted / true exitance ratio - 1, per channel.
     pub fn errors(&self) -> [f64; 3] {
-        self.fitted.map(|f| f / self.truth - 1.0)
+        std::array::from_fn(|c| self.fitted[c] / self.exitance[c] - 1.0)
     }
 }
 
-/// The largest |fitted / truth - 1| over directions and channels.
+/// The largest |fitted / true exitance ratio - 1| over directions and channels.
 pub fn worst_error(checks: &[EntranceCheck]) -> f64 {
     checks
         .iter()

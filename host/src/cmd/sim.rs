@@ -383,14 +383,14 @@ fn entrance_against_model(world: &World, dir: &Path, e: &EntranceArgs) -> Result
     }
     writeln!(
         out,
-        "theta_deg  phi_deg  fitted R / G / B          true f/f(0)       T/T(0)  error R / G / B         exitance ratio R / G / B"
+        "theta_deg  phi_deg  fitted R / G / B          true exitance ratio R / G / B  error R / G / B         entering f/f(0)   T/T(0)"
     )?;
     for c in &checks {
         let [er, eg, eb] = c.errors().map(|x| 100.0 * x);
         let [xr, xg, xb] = c.exitance;
         writeln!(
             out,
-            "{:9.1}  {:7.1}  {:.4} / {:.4} / {:.4}  {:.4} +- {:.4}  {:.4}  {er:+5.1} / {eg:+5.1} / {eb:+5.1} %  {xr:.4} / {xg:.4} / {xb:.4}",
+            "{:9.1}  {:7.1}  {:.4} / {:.4} / {:.4}  {xr:.4} / {xg:.4} / {xb:.4}       {er:+5.1} / {eg:+5.1} / {eb:+5.1} %  {:.4} +- {:.4}  {:.4}",
             c.theta_deg,
             c.phi_deg,
             c.fitted[0],
@@ -401,7 +401,11 @@ fn entrance_against_model(world: &World, dir: &Path, e: &EntranceArgs) -> Result
             c.fresnel
         )?;
     }
-    writeln!(out, "worst |fitted / true - 1|: {:.1} %", 100.0 * worst)?;
+    writeln!(
+        out,
+        "worst |fitted / true exitance ratio - 1|: {:.1} %",
+        100.0 * worst
+    )?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -26,7 +26,6 @@ pub(super) fn fit_entrance(
     opts: &FitOptions,
     notes: &mut Vec<String>,
 ) -> Result<(EntranceFunction, Vec<([f32; 3], [f32; 3])>), ModelError> {
-    let is_vertical = |d: [f64; 3]| d[2] > (2f64).to_radians().cos();
     // Mean per-stripe exitance flux / incident flux, keyed by (light, view, channel).
     if !data.index.stripe.iter().any(|s| s.pass == 1) {
         notes.push(
@@ -58,34 +57,7 @@ pub(super) fn fit_entrance(
         ));
     }
     let fresnel_average = fresnel::fresnel_hemispherical_average(opts.eta);
-    // The three lasers' planes differ by fractions of a degree: light
-    // directions within ~1 degree of a cluster's first member are one
-    // direction, so each direction has all channels (clusters, not a grid:
-    // rounding would split neighbours across a cell boundary).
-    let mut clusters: Vec<[f64; 3]> = Vec::new();
-    let light_keys: Vec<[i64; 3]> = used
-        .iter()
-        .map(|s| {
-            if is_vertical(s.light_dir) {
-                return VERTICAL_KEY;
-            }
-            let d = s.light_dir;
-            let close = |c: &[f64; 3]| {
-                (c[0] * d[0] + c[1] * d[1] + c[2] * d[2])
-                    .clamp(-1.0, 1.0)
-                    .acos()
-                    < SAME_LIGHT_DIR
-            };
-            let first = match clusters.iter().find(|c| close(c)) {
-                Some(c) => *c,
-                None => {
-                    clusters.push(d);
-                    d
-                }
-            };
-            dir_key(first)
-        })
-        .collect();
+    let light_keys = cluster_light_directions(used.iter().map(|s| s.light_dir));
     // Each image's outgoing flux per mm of stripe over the band |d| <= reach
     // around its line: the mean radiance at each signed distance (so the
     // length of line inside the window does not matter) summed over the
@@ -146,9 +118,17 @@ pub(super) fn fit_entrance(
         }
         per_view.values().map(|(f, n)| f / *n as f64).sum::<f64>() / per_view.len() as f64
     });
+    // Each direction is its stripes' mean.
     let mut lights: BTreeMap<[i64; 3], [f64; 3]> = BTreeMap::new();
     for b in &images {
-        lights.entry(b.light).or_insert(b.light_dir);
+        let sum = lights.entry(b.light).or_default();
+        for (s, d) in sum.iter_mut().zip(b.light_dir) {
+            *s += d;
+        }
+    }
+    for d in lights.values_mut() {
+        let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        *d = d.map(|v| v / norm);
     }
     let mut samples: Vec<([f32; 3], [f32; 3])> = vec![([0.0, 0.0, 1.0], [1.0; 3])];
     for (lk, ld) in &lights {
@@ -229,6 +209,44 @@ pub(super) fn fit_entrance(
         }
     }
     Ok((table, samples))
+}
+
+/// A light within 2 degrees of the normal is the vertical reference.
+fn is_vertical(d: [f64; 3]) -> bool {
+    d[2] > (2f64).to_radians().cos()
+}
+
+/// One key per light direction: [`VERTICAL_KEY`] for the vertical, else
+/// that of the cluster it joins, the nearest centre within `SAME_LIGHT_DIR`
+/// or a new one (clusters, not a grid, as rounding would split neighbours
+/// across a cell boundary). So each direction has all channels and every
+/// row that aims the laser that way, and so views from both sides of it.
+fn cluster_light_directions(dirs: impl Iterator<Item = [f64; 3]>) -> Vec<[i64; 3]> {
+    let mut centres: Vec<[f64; 3]> = Vec::new();
+    dirs.map(|d| {
+        if is_vertical(d) {
+            return VERTICAL_KEY;
+        }
+        let angle = |c: &[f64; 3]| {
+            (c[0] * d[0] + c[1] * d[1] + c[2] * d[2])
+                .clamp(-1.0, 1.0)
+                .acos()
+        };
+        let nearest = centres
+            .iter()
+            .map(|c| (angle(c), *c))
+            .filter(|(a, _)| *a < SAME_LIGHT_DIR)
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        let centre = match nearest {
+            Some((_, c)) => c,
+            None => {
+                centres.push(d);
+                d
+            }
+        };
+        dir_key(centre)
+    })
+    .collect()
 }
 
 /// One stripe image's band flux per incident flux, with its light and view.
@@ -314,6 +332,32 @@ mod tests {
             line_point: [x0, 0.0],
             line_dir: dir,
         }
+    }
+
+    #[test]
+    fn light_directions_a_degree_apart_are_one_and_a_plan_s_steps_are_not() {
+        let dir = |theta_deg: f64, phi_deg: f64| {
+            let (t, p) = (theta_deg.to_radians(), phi_deg.to_radians());
+            [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+        };
+        // A sweep's spread about 30 and 60 degrees at azimuth 45, and the
+        // paper plan's nearest other direction (azimuth 30 degrees further
+        // at 15 degrees from the normal, 7.8 degrees away), and the vertical.
+        let dirs = [
+            dir(30.4, 45.3),
+            dir(59.6, 44.2),
+            dir(29.5, 44.6),
+            dir(60.3, 45.9),
+            dir(15.0, 45.0),
+            dir(15.0, 75.0),
+            dir(0.5, 10.0),
+        ];
+        let keys = cluster_light_directions(dirs.into_iter());
+        assert_eq!(keys[0], keys[2]);
+        assert_eq!(keys[1], keys[3]);
+        assert_ne!(keys[0], keys[1]);
+        assert_ne!(keys[4], keys[5]);
+        assert_eq!(keys[6], VERTICAL_KEY);
     }
 
     #[test]

@@ -7,8 +7,12 @@ use crate::rectified::{Grid, StripeEntry};
 /// Light directions within 5 degrees of the normal count as vertical.
 pub(super) const NEAR_VERTICAL_COS: f64 = 0.996_194_698_091_745_5;
 
-/// Pass-1 light directions closer than this (radians) are one direction.
-pub(super) const SAME_LIGHT_DIR: f64 = 0.02;
+/// Pass-1 light directions closer than this (radians) are one direction:
+/// a laser's direction varies by about a degree across its sweep and
+/// between the rows (arc and turntable angles) that aim it the same way in
+/// the sample's frame, while distinct directions of a plan lie 7.5 degrees
+/// apart or more.
+pub(super) const SAME_LIGHT_DIR: f64 = 0.07;
 
 /// Directions are grouped when closer than this (radians).
 pub(super) const SAME_DIR: f64 = 1e-3;
