@@ -26,7 +26,7 @@ pub use camera::{
 };
 pub use dir::{CaptureDir, DirError, Manifest};
 pub use operator::{ConsoleOperator, Operator, OperatorError};
-pub use plan::{Plan, PlanConfig, PlanError, Scale};
+pub use plan::{Pass, Plan, PlanConfig, PlanError, Scale};
 pub use run::{NoProgress, Progress, RunError, RunOptions, RunReport, run_capture, safe_off};
 
 /// How a real camera is fired.

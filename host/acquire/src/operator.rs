@@ -8,6 +8,7 @@
 use std::io::{BufRead, Write};
 
 use crate::camera::BoxFuture;
+use crate::plan::Pass;
 
 #[derive(Debug, thiserror::Error)]
 pub enum OperatorError {
@@ -26,6 +27,13 @@ pub trait Operator: Send {
     /// Put `what` on the turntable: the sample (`"sample"`) or a calibration
     /// target (`"checkerboard"`, `"colour-pattern"`, `"white"`, `"two-height"`).
     fn place_on_turntable(&mut self, what: &str) -> BoxFuture<'_, Result<(), OperatorError>>;
+    /// The capture's next steps belong to `pass` (at the start, on resume,
+    /// and whenever the pass changes): nothing to do at a real rig; the
+    /// simulated rig's operator passes it on (pass 1's stripes feed only
+    /// band fluxes, and the simulation renders them with fewer photons).
+    fn begin_pass(&mut self, pass: Pass) {
+        let _ = pass;
+    }
 }
 
 /// Asks on stderr, waits for Enter on stdin.

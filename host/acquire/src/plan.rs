@@ -10,14 +10,16 @@
 //! Order (fewest motions): the operator's clamp moves are outermost, then the
 //! light arc (the slower axis), then the turntable in serpentine order (so it
 //! never swings back across the whole circle), then the electronic switches
-//! (laser colour, lamp), then the exposures. Pass 1 climbs the oblique clamp
-//! positions and the clamp then rises to the vertical for pass 2, so it moves
-//! once per position.
+//! (laser colour, lamp), then the exposures.
 //!
-//! Pass 1 takes no vertical stripes when pass 2 holds every view it has: the
-//! vertical reference f(w_i) is measured against is pass 2's then (the same
-//! lasers, scan positions and views), and pass-1 frames at the vertical
-//! clamp would repeat it.
+//! f(w_i) compares each oblique stripe with a vertical one on the same line
+//! of the sample, seen from the same view: a heterogeneous sample differs
+//! from line to line by more than f does. So pass 1 ends at the vertical
+//! clamp with a reference row for every turntable angle and line direction
+//! its oblique rows use, at the same scan positions, unless pass 2 already
+//! sweeps those lines in those views (`PlanConfig::entrance_vertical_rows`).
+//! The clamp then stays at the vertical for pass 2 and moves once per
+//! position.
 
 use std::f64::consts::PI;
 
@@ -125,6 +127,12 @@ pub struct PlanConfig {
     pub lamps: Vec<u8>,
     /// Laser scan positions per sweep, evenly over +-`scan_half_width_mm` on the plane.
     pub scan_positions: u16,
+    /// Pass 1's scan positions, when not `scan_positions`. f(w_i) sums
+    /// stripes over the sample, so a heterogeneous sample wants many lines;
+    /// each feeds only a band flux, so the simulated rig renders them with
+    /// fewer photons (`SimQuality::entrance_laser_photons`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entrance_scan_positions: Option<u16>,
     pub scan_half_width_mm: f64,
     /// Exposure brackets, s. A pixel saturated in every exposure is lost
     /// with the texels it falls in, and those are the brightest (a cell
@@ -174,6 +182,7 @@ impl PlanConfig {
             cameras: all_cams,
             lamps: all_lamps,
             scan_positions: 32,
+            entrance_scan_positions: None,
             scan_half_width_mm: 12.0,
             laser_exposures: vec![0.0000625, 0.0005, 0.002, 0.008, 0.032, 0.128],
             lamp_exposures: vec![0.001, 0.004, 0.016, 0.064],
@@ -195,6 +204,10 @@ impl PlanConfig {
                 reflectance_arc_rotations: 4,
                 reflectance_turntable: 4,
                 scan_positions: 6,
+                // One line per mm: a two-material sample's f(w_i) is within
+                // 1.6 % of the true exitance ratio with 24, 3.6 % with 12
+                // (docs/capture.md).
+                entrance_scan_positions: Some(24),
                 laser_exposures: vec![0.0000625, 0.0005, 0.004, 0.032],
                 lamp_exposures: vec![0.001, 0.008, 0.064],
                 binning: 4,
@@ -275,6 +288,9 @@ impl PlanConfig {
         if self.scan_positions == 0 {
             return bad("scan_positions", "must be at least 1");
         }
+        if self.entrance_scan_positions == Some(0) {
+            return bad("entrance_scan_positions", "must be at least 1");
+        }
         if !(0.0..=30.0).contains(&self.scan_half_width_mm) {
             return bad("scan_half_width_mm", "must be 0..=30 mm");
         }
@@ -312,21 +328,49 @@ impl PlanConfig {
         Ok(())
     }
 
-    /// Whether pass 1 must image the vertical clamp position itself: when it
-    /// has no oblique position (the vertical is all it measures), or when a
-    /// view of pass 1 (entrance camera and turntable angle) is not among
-    /// pass 2's, whose vertical stripes are otherwise its reference.
-    pub fn entrance_needs_vertical(&self) -> bool {
-        let oblique = self.clamp_elevations.iter().any(|&e| !is_vertical(e));
-        let exiting = circle(self.exiting_turntable, false);
-        let views_in_pass_2 = self
-            .entrance_cameras
-            .iter()
-            .all(|c| self.cameras.contains(c))
-            && circle(self.entrance_turntable, false)
-                .iter()
-                .all(|t| exiting.iter().any(|e| (e - t).abs() < 1e-9));
-        !(oblique && views_in_pass_2)
+    /// Pass 1's scan positions per sweep.
+    pub fn entrance_positions(&self) -> u16 {
+        self.entrance_scan_positions.unwrap_or(self.scan_positions)
+    }
+
+    /// The (light-arc, turntable) rows pass 1 images at the vertical clamp:
+    /// with no oblique position, every row (the vertical is
+    /// all it measures); otherwise one per turntable angle and line
+    /// direction of the oblique rows (the line lies across the light's
+    /// azimuth, so arcs half a turn apart sweep the same lines), unless pass
+    /// 2 sweeps the same lines there, in every entrance view.
+    pub fn entrance_vertical_rows(&self) -> Vec<(f64, f64)> {
+        let arcs = circle(self.entrance_arc_rotations, true);
+        let turntable = circle(self.entrance_turntable, false);
+        let all = || {
+            arcs.iter()
+                .flat_map(|&a| turntable.iter().map(move |&t| (a, t)))
+                .collect()
+        };
+        if self.clamp_elevations.iter().all(|&e| is_vertical(e)) {
+            return all();
+        }
+        let same_lines = |a: f64, b: f64| ((a - b) / PI - ((a - b) / PI).round()).abs() < 1e-9;
+        let in_pass_2 = |arc: f64, tt: f64| {
+            self.entrance_positions() == self.scan_positions
+                && self
+                    .entrance_cameras
+                    .iter()
+                    .all(|c| self.cameras.contains(c))
+                && circle(self.exiting_turntable, false)
+                    .iter()
+                    .any(|&t| (t - tt).abs() < 1e-9 && same_lines(exiting_arc(t, self), arc))
+        };
+        let mut rows: Vec<(f64, f64)> = Vec::new();
+        for &a in &arcs {
+            for &t in &turntable {
+                let seen = rows.iter().any(|&(ra, rt)| rt == t && same_lines(ra, a));
+                if !seen && !in_pass_2(a, t) {
+                    rows.push((a, t));
+                }
+            }
+        }
+        rows
     }
 
     /// Frame size the cameras deliver at this binning.
@@ -450,6 +494,12 @@ pub fn galvo_angles(n: u16, half_width_mm: f64, elevation: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Pass 2's light-arc angle at turntable angle `tt`: it follows the
+/// turntable, so the stripe crosses the sample the same way in every view.
+fn exiting_arc(tt: f64, c: &PlanConfig) -> f64 {
+    tt - PI + PI / c.exiting_turntable as f64
+}
+
 /// Serpentine order: even rows forward, odd rows backward.
 fn serpentine(v: &[f64], row: usize) -> Vec<f64> {
     if row % 2 == 0 {
@@ -484,19 +534,24 @@ impl Plan {
                 });
             }
         };
-        // Pass 1: ascending elevations, without the vertical where pass 2
-        // holds its reference (module docs).
+        // Pass 1: ascending elevations, ending at the vertical with the rows
+        // its reference needs (module docs).
         let mut clamps = c.clamp_elevations.clone();
         clamps.sort_by(f64::total_cmp);
         clamps.dedup();
-        if !c.entrance_needs_vertical() {
-            clamps.retain(|&e| !is_vertical(e));
-        }
+        let vertical_rows = c.entrance_vertical_rows();
         let mut row = 0;
         for (ci, &clamp) in clamps.iter().enumerate() {
-            let galvo = galvo_angles(c.scan_positions, c.scan_half_width_mm, clamp);
+            let galvo = galvo_angles(c.entrance_positions(), c.scan_half_width_mm, clamp);
             for arc in serpentine(&circle(c.entrance_arc_rotations, true), ci) {
-                for tt in serpentine(&circle(c.entrance_turntable, false), row) {
+                let tts: Vec<f64> = serpentine(&circle(c.entrance_turntable, false), row)
+                    .into_iter()
+                    .filter(|&tt| !is_vertical(clamp) || vertical_rows.contains(&(arc, tt)))
+                    .collect();
+                if tts.is_empty() {
+                    continue;
+                }
+                for tt in tts {
                     for &colour in &c.laser_colours {
                         let light = Light::Laser {
                             colour,
@@ -529,7 +584,7 @@ impl Plan {
                     Pass::Exiting,
                     Some(PI / 2.0),
                     tt,
-                    tt - PI + PI / c.exiting_turntable as f64,
+                    exiting_arc(tt, c),
                     light,
                     &c.laser_exposures,
                     &c.cameras,
@@ -755,17 +810,14 @@ mod tests {
         for scale in Scale::ALL {
             let plan = Plan::new(PlanConfig::for_scale(scale)).unwrap();
             let c = &plan.config;
-            let p1_clamps = c
-                .clamp_elevations
-                .iter()
-                .filter(|&&e| c.entrance_needs_vertical() || !is_vertical(e))
-                .count();
-            let p1 = p1_clamps
-                * c.entrance_arc_rotations as usize
-                * c.entrance_turntable as usize
+            let oblique = c.clamp_elevations.iter().filter(|&&e| !is_vertical(e));
+            let p1_rows =
+                oblique.count() * c.entrance_arc_rotations as usize * c.entrance_turntable as usize
+                    + c.entrance_vertical_rows().len();
+            let p1 = p1_rows
                 * c.laser_colours.len()
                 * c.laser_exposures.len()
-                * c.scan_positions as usize
+                * c.entrance_positions() as usize
                 * c.entrance_cameras.len();
             let p2 = c.exiting_turntable as usize
                 * c.laser_colours.len()
@@ -837,51 +889,75 @@ mod tests {
             arc_moves < rows - 1,
             "{arc_moves} arc moves for {rows} rows"
         );
-        // Default scale: 8 pass-1 rows (two oblique clamp positions) sharing
-        // 1 end, pass 2 starting where pass 1 ended, 3 in pass 2, pass 3
-        // starting where pass 2 ended, 3 in pass 3.
-        assert_eq!(arc_moves, 6 + 3 + 3);
+        // Default scale: 8 oblique pass-1 rows at each of two clamp
+        // positions sharing 1 end, 2 vertical reference rows (arcs) sharing
+        // the other, 1 move into pass 2, 3 in pass 2, pass 3 starting where
+        // pass 2 ended, 3 in pass 3.
+        assert_eq!(arc_moves, 6 + 1 + 1 + 3 + 3);
         let p2 = steps.iter().find(|s| s.pass == Pass::Exiting).unwrap();
         let last_p1 = steps
             .iter()
             .rev()
             .find(|s| s.pass == Pass::Entrance)
             .unwrap();
-        assert_eq!(p2.light_arc, last_p1.light_arc);
-        assert!(last_p1.clamp_elevation < p2.clamp_elevation);
+        assert_eq!(last_p1.clamp_elevation, p2.clamp_elevation);
+    }
+
+    /// The oblique stripes' lines, and those of the vertical stripes in
+    /// the same view: (turntable, line direction mod pi, galvo angles).
+    fn lines(plan: &Plan) -> (Vec<(f64, f64, Vec<f64>)>, Vec<(f64, f64, Vec<f64>)>) {
+        let (mut oblique, mut vertical) = (Vec::new(), Vec::new());
+        let entrance_cams = &plan.config.entrance_cameras;
+        for s in &plan.steps {
+            let Light::Laser { galvo, .. } = &s.light else {
+                continue;
+            };
+            let line = (
+                s.turntable,
+                (s.light_arc - s.turntable).rem_euclid(PI),
+                galvo.clone(),
+            );
+            match s.clamp_elevation {
+                Some(e) if !is_vertical(e) => oblique.push(line),
+                _ if entrance_cams.iter().all(|c| s.cameras.contains(c)) => vertical.push(line),
+                _ => {}
+            }
+        }
+        (oblique, vertical)
     }
 
     #[test]
-    fn pass_1_takes_the_vertical_only_where_pass_2_lacks_its_views() {
-        let vertical = |p: &Plan| {
-            p.steps
-                .iter()
-                .filter(|s| s.pass == Pass::Entrance)
-                .filter(|s| s.clamp_elevation.is_some_and(is_vertical))
-                .count()
+    fn every_oblique_line_has_a_vertical_one_in_its_views() {
+        let same = |a: &(f64, f64, Vec<f64>), b: &(f64, f64, Vec<f64>)| {
+            (a.0 - b.0).abs() < 1e-9
+                && ((a.1 - b.1).abs() < 1e-9 || (PI - (a.1 - b.1).abs()).abs() < 1e-9)
+                && a.2.len() == b.2.len()
         };
-        // Every named scale: pass 2 holds pass 1's views.
         for scale in Scale::ALL {
-            let c = PlanConfig::for_scale(scale);
-            assert!(!c.entrance_needs_vertical(), "{scale:?}");
-            let plan = Plan::new(c).unwrap();
-            assert_eq!(vertical(&plan), 0, "{scale:?}");
-            assert!(plan.steps.iter().any(|s| s.pass == Pass::Entrance));
+            let plan = Plan::new(PlanConfig::for_scale(scale)).unwrap();
+            let (oblique, vertical) = lines(&plan);
+            assert!(!oblique.is_empty());
+            for o in &oblique {
+                assert!(vertical.iter().any(|v| same(o, v)), "{scale:?}: {o:?}");
+            }
         }
-        // An entrance camera pass 2 does not use, a turntable angle it does
-        // not visit, or no oblique position: pass 1 images the vertical.
+        // Pass 2 sweeps ci's lines in its views, so pass 1 images no vertical;
+        // the default scale's 24 lines need 2 directions x 2 turntable angles.
+        let vertical_rows = |scale| PlanConfig::for_scale(scale).entrance_vertical_rows().len();
+        assert_eq!(vertical_rows(Scale::Ci), 0);
+        assert_eq!(vertical_rows(Scale::Default), 4);
+        assert_eq!(vertical_rows(Scale::Paper), 4 * 5);
+        // An entrance camera pass 2 does not use: ci's row too.
         let mut c = PlanConfig::for_scale(Scale::Ci);
         c.cameras = vec![3, 5];
-        let per_position = (c.entrance_arc_rotations * c.entrance_turntable) as usize
-            * c.laser_colours.len()
-            * c.laser_exposures.len();
-        assert_eq!(vertical(&Plan::new(c).unwrap()), per_position);
-        let mut c = PlanConfig::for_scale(Scale::Default);
-        c.exiting_turntable = 3;
-        assert!(vertical(&Plan::new(c).unwrap()) > 0);
+        assert_eq!(c.entrance_vertical_rows().len(), 1);
+        // No oblique position: every row.
         let mut c = PlanConfig::for_scale(Scale::Ci);
         c.clamp_elevations = vec![PI / 2.0];
-        assert_eq!(vertical(&Plan::new(c).unwrap()), per_position);
+        assert_eq!(
+            c.entrance_vertical_rows().len(),
+            (c.entrance_arc_rotations * c.entrance_turntable) as usize
+        );
     }
 
     #[test]

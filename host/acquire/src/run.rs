@@ -30,7 +30,7 @@ use qhm_link::{Link, LinkError, LinkEvent};
 use crate::camera::{Camera, CameraError, CameraSettings};
 use crate::dir::{CaptureDir, DirError};
 use crate::operator::{Operator, OperatorError};
-use crate::plan::{Light, Plan, Step};
+use crate::plan::{Light, Pass, Plan, Step};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -124,6 +124,8 @@ struct RigCache {
     /// carriage anywhere between this and `light_arc`.
     light_arc_from: f64,
     clamp: Option<f64>,
+    /// The pass the operator was last told of.
+    pass: Option<Pass>,
     /// The calibration target the operator last put on the turntable.
     target: Option<String>,
     laser: Option<LaserColour>,
@@ -212,6 +214,7 @@ pub async fn run_capture(
                     // The clamp and the target are mechanical: a reset moves neither.
                     rig = RigCache {
                         clamp: rig.clamp,
+                        pass: rig.pass,
                         target: rig.target.take(),
                         ..RigCache::default()
                     };
@@ -346,6 +349,10 @@ async fn run_step(
         rig.turntable = 0.0;
         rig.light_arc = 0.0;
         rig.light_arc_from = 0.0;
+    }
+    if rig.pass != Some(step.pass) {
+        operator.begin_pass(step.pass);
+        rig.pass = Some(step.pass);
     }
     // The operator's step: laser off while a person handles the unit.
     if let Some(e) = step.clamp_elevation

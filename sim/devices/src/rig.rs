@@ -33,7 +33,7 @@ use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
 
 use qhm_acquire::{
     BoxFuture, Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameMeta, Operator,
-    OperatorError, PixelFormat, Scale,
+    OperatorError, Pass, PixelFormat, Scale,
 };
 
 #[derive(Debug, thiserror::Error)]
@@ -111,34 +111,32 @@ pub fn capture_quality(scale: Scale) -> SimQuality {
 
 /// The ci capture's: sim-light's ci photon budget binned 4, not its ci 8
 /// (at 0.7 mm pixels the stripe's near field blurs into the fitted profile:
-/// a' and s'_t biased), with a quarter of the photons for pass 1's oblique
-/// stripes.
+/// a' and s'_t biased), with a quarter of the photons for pass 1's stripes.
 pub fn ci_capture_quality() -> SimQuality {
-    with_oblique_quarter(SimQuality {
+    let ci = SimQuality::ci();
+    SimQuality {
         downscale: 4,
-        ..SimQuality::ci()
-    })
+        entrance_laser_photons: Some(ci.laser_photons / 4),
+        ..ci
+    }
 }
 
 /// The default capture's (the demo's): sim-light's `preview` rung, 256 x 192,
-/// with a quarter of the photons for pass 1's oblique stripes.
+/// with a sixteenth of the photons for each of pass 1's stripes: four times
+/// as many lines as pass 2's, with the photons a quarter would give at its
+/// six (`SimQuality::entrance_laser_photons`).
 pub fn default_capture_quality() -> SimQuality {
-    with_oblique_quarter(SimQuality::preview())
+    let preview = SimQuality::preview();
+    SimQuality {
+        entrance_laser_photons: Some(preview.laser_photons / 16),
+        ..preview
+    }
 }
 
 /// The paper capture's: sim-light's full-frame `default_scale` rung,
 /// 1024 x 768, every stripe at the full photon budget.
 pub fn paper_capture_quality() -> SimQuality {
     SimQuality::default_scale()
-}
-
-/// Pass 1's oblique stripes feed only band fluxes (see
-/// `SimQuality::oblique_laser_photons`): a quarter of the photons.
-fn with_oblique_quarter(quality: SimQuality) -> SimQuality {
-    SimQuality {
-        oblique_laser_photons: Some(quality.laser_photons / 4),
-        ..quality
-    }
 }
 
 /// The calibration capture's for `scale`: the default capture's image size
@@ -231,6 +229,13 @@ impl SimHandle {
             .unwrap_or_else(|e| e.into_inner())
             .set_laser_mount(elevation);
     }
+    /// Whether the capture is in its entrance pass (`World::set_entrance_scan`).
+    pub fn set_entrance_scan(&self, on: bool) {
+        self.world
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .set_entrance_scan(on);
+    }
     /// Put the sample (`"sample"`), a target preset, or the checkerboard on
     /// a spacer (`qhm_acquire::cal_plan::checkerboard_on_spacer`) on the turntable.
     pub fn place(&self, what: &str) -> Result<(), sim_light::Error> {
@@ -249,9 +254,9 @@ impl SimHandle {
             SceneDesc::preset(what)?
         };
         let mut w = self.world.write().unwrap_or_else(|e| e.into_inner());
-        let elevation = w.laser_mount();
         let mut next = World::new(desc, w.rig().clone(), *w.quality())?;
-        next.set_laser_mount(elevation);
+        next.set_laser_mount(w.laser_mount());
+        next.set_entrance_scan(w.entrance_scan());
         *w = next;
         Ok(())
     }
@@ -295,6 +300,9 @@ impl Operator for SimOperator {
             .place(what)
             .map_err(|e| OperatorError::Failed(e.to_string()));
         Box::pin(async move { r })
+    }
+    fn begin_pass(&mut self, pass: Pass) {
+        self.handle.set_entrance_scan(pass == Pass::Entrance);
     }
 }
 
@@ -533,6 +541,7 @@ fn binned_world<'a>(
         }
     };
     binned[i].2.set_laser_mount(world.laser_mount());
+    binned[i].2.set_entrance_scan(world.entrance_scan());
     Ok(&binned[i].2)
 }
 
@@ -642,6 +651,13 @@ fn pose_key(world: &World, ev: &TriggerEvent) -> u64 {
         laser_only(q(world.laser_mount())),
     ] {
         h = mix64(h ^ v);
+    }
+    // A vertical stripe of the entrance pass takes fewer photons than pass
+    // 2's at the same pose. Oblique stripes come in pass 1 alone, so the
+    // pass adds nothing to any other key.
+    let vertical = (world.laser_mount() - std::f64::consts::FRAC_PI_2).abs() < 1e-6;
+    if laser_on && vertical && world.entrance_scan() {
+        h = mix64(h ^ 1);
     }
     for b in world.desc().to_toml_string().bytes() {
         h = mix64(h ^ b as u64);
@@ -768,12 +784,12 @@ impl Hub {
 mod tests {
     use super::*;
 
-    /// Image binning, photons per stripe, per oblique stripe and per lamp.
+    /// Image binning, photons per stripe, per entrance-pass stripe and per lamp.
     fn budget(q: SimQuality) -> (u32, u64, Option<u64>, u64) {
         (
             q.downscale,
             q.laser_photons,
-            q.oblique_laser_photons,
+            q.entrance_laser_photons,
             q.lamp_photons,
         )
     }
@@ -786,7 +802,7 @@ mod tests {
         );
         assert_eq!(
             budget(capture_quality(Scale::Default)),
-            (4, 640_000, Some(160_000), 100_000)
+            (4, 640_000, Some(40_000), 100_000)
         );
         assert_eq!(
             budget(capture_quality(Scale::Paper)),
@@ -796,8 +812,8 @@ mod tests {
             SimRigConfig::new("marble", Scale::Default, 1).quality,
             default_capture_quality()
         );
-        // Calibration: the default capture's binning or finer, no oblique
-        // budget, at least a million lamp photons.
+        // Calibration: the default capture's binning or finer, no
+        // entrance-pass budget, at least a million lamp photons.
         for scale in [Scale::Ci, Scale::Default] {
             assert_eq!(
                 budget(calibration_quality(scale)),

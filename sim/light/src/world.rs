@@ -20,15 +20,19 @@ pub struct SimQuality {
     pub downscale: u32,
     /// Photons per laser stripe (one channel).
     pub laser_photons: u64,
-    /// Photons per stripe while the laser is clamped off the vertical
-    /// (None: `laser_photons`). A capture's oblique stripes (pass 1) feed
-    /// only the entrance function, which reads each stripe's flux summed
-    /// over a band around its line: a sum over the whole stripe, it holds
-    /// its noise at a fraction of the photons the vertical stripes' profile
-    /// fits need. Calibration keeps `laser_photons` (its laser planes are
-    /// fitted at every clamp position).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub oblique_laser_photons: Option<u64>,
+    /// Photons per stripe while the world renders a capture's entrance pass
+    /// ([`World::set_entrance_scan`]; None: `laser_photons`). Pass 1's
+    /// stripes feed only the entrance function, which reads each stripe's
+    /// flux summed over a band around its line: a sum over the whole
+    /// stripe, it holds its noise at a fraction of the photons the vertical
+    /// stripes' profile fits need. Calibration keeps `laser_photons` (its
+    /// laser planes are fitted at every clamp position).
+    #[serde(
+        default,
+        alias = "oblique_laser_photons",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub entrance_laser_photons: Option<u64>,
     /// Photons per lamp and channel (per lamp on a calibration target, whose
     /// channels share them).
     pub lamp_photons: u64,
@@ -46,7 +50,7 @@ impl SimQuality {
         SimQuality {
             downscale: 8,
             laser_photons: 640_000,
-            oblique_laser_photons: None,
+            entrance_laser_photons: None,
             lamp_photons: 40_000,
             surface_cell_mm: 0.2,
         }
@@ -57,7 +61,7 @@ impl SimQuality {
         SimQuality {
             downscale: 4,
             laser_photons: 640_000,
-            oblique_laser_photons: None,
+            entrance_laser_photons: None,
             lamp_photons: 100_000,
             surface_cell_mm: 0.1,
         }
@@ -67,7 +71,7 @@ impl SimQuality {
         SimQuality {
             downscale: 1,
             laser_photons: 1_000_000,
-            oblique_laser_photons: None,
+            entrance_laser_photons: None,
             lamp_photons: 1_000_000,
             surface_cell_mm: 0.1,
         }
@@ -77,7 +81,7 @@ impl SimQuality {
         SimQuality {
             downscale: 1,
             laser_photons: 40_000_000,
-            oblique_laser_photons: None,
+            entrance_laser_photons: None,
             lamp_photons: 30_000_000,
             surface_cell_mm: 0.05,
         }
@@ -162,6 +166,7 @@ pub struct World {
     rig: RigTruth,
     quality: SimQuality,
     laser_elevation: f64,
+    entrance_scan: bool,
     vertex_nee: bool,
 }
 
@@ -256,6 +261,7 @@ impl World {
             rig,
             quality,
             laser_elevation: std::f64::consts::FRAC_PI_2,
+            entrance_scan: false,
             vertex_nee: true,
         })
     }
@@ -263,6 +269,14 @@ impl World {
     /// Clamp the laser unit at this (nominal) elevation on the light arc.
     pub fn set_laser_mount(&mut self, elevation_rad: f64) {
         self.laser_elevation = elevation_rad;
+    }
+    /// Whether the stripes now shot are a capture's entrance pass (pass 1),
+    /// rendered with `SimQuality::entrance_laser_photons`.
+    pub fn set_entrance_scan(&mut self, on: bool) {
+        self.entrance_scan = on;
+    }
+    pub fn entrance_scan(&self) -> bool {
+        self.entrance_scan
     }
     /// Choose the estimator of light leaving the volume: next-event
     /// estimation from scattering vertices (the default, smooth images) or
@@ -429,9 +443,8 @@ impl World {
                 length: g.length as f32,
             };
             let flux = self.rig.laser.power_w[l.channel] * l.power as f64;
-            let vertical = (self.laser_elevation - std::f64::consts::FRAC_PI_2).abs() < 1e-6;
-            let photons = match self.quality.oblique_laser_photons {
-                Some(n) if !vertical => n,
+            let photons = match self.quality.entrance_laser_photons {
+                Some(n) if self.entrance_scan => n,
                 _ => self.quality.laser_photons,
             };
             run(
