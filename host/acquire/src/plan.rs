@@ -328,6 +328,15 @@ impl PlanConfig {
         Ok(())
     }
 
+    /// Pass 1's clamp elevations off the vertical.
+    pub fn oblique_elevations(&self) -> Vec<f64> {
+        self.clamp_elevations
+            .iter()
+            .copied()
+            .filter(|&e| !is_vertical(e))
+            .collect()
+    }
+
     /// Pass 1's scan positions per sweep.
     pub fn entrance_positions(&self) -> u16 {
         self.entrance_scan_positions.unwrap_or(self.scan_positions)
@@ -347,17 +356,19 @@ impl PlanConfig {
                 .flat_map(|&a| turntable.iter().map(move |&t| (a, t)))
                 .collect()
         };
-        if self.clamp_elevations.iter().all(|&e| is_vertical(e)) {
+        if self.oblique_elevations().is_empty() {
             return all();
         }
         let same_lines = |a: f64, b: f64| ((a - b) / PI - ((a - b) / PI).round()).abs() < 1e-9;
+        let pass_2_sweeps_them = self.entrance_positions() == self.scan_positions
+            && self
+                .entrance_cameras
+                .iter()
+                .all(|c| self.cameras.contains(c));
+        let exiting = circle(self.exiting_turntable, false);
         let in_pass_2 = |arc: f64, tt: f64| {
-            self.entrance_positions() == self.scan_positions
-                && self
-                    .entrance_cameras
-                    .iter()
-                    .all(|c| self.cameras.contains(c))
-                && circle(self.exiting_turntable, false)
+            pass_2_sweeps_them
+                && exiting
                     .iter()
                     .any(|&t| (t - tt).abs() < 1e-9 && same_lines(exiting_arc(t, self), arc))
         };
@@ -810,10 +821,10 @@ mod tests {
         for scale in Scale::ALL {
             let plan = Plan::new(PlanConfig::for_scale(scale)).unwrap();
             let c = &plan.config;
-            let oblique = c.clamp_elevations.iter().filter(|&&e| !is_vertical(e));
-            let p1_rows =
-                oblique.count() * c.entrance_arc_rotations as usize * c.entrance_turntable as usize
-                    + c.entrance_vertical_rows().len();
+            let p1_rows = c.oblique_elevations().len()
+                * c.entrance_arc_rotations as usize
+                * c.entrance_turntable as usize
+                + c.entrance_vertical_rows().len();
             let p1 = p1_rows
                 * c.laser_colours.len()
                 * c.laser_exposures.len()

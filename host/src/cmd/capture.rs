@@ -139,16 +139,10 @@ fn plan(scale: &str, json: bool) -> Result<ExitCode> {
             .collect::<Vec<_>>()
             .join(",")
     };
-    let oblique: Vec<f64> = c
-        .clamp_elevations
-        .iter()
-        .copied()
-        .filter(|e| (e - std::f64::consts::FRAC_PI_2).abs() > 1e-6)
-        .collect();
     println!("capture plan, scale {}", scale.name());
     println!(
         "  pass 1 (entrance):    (clamp at {} deg x {} arc rotations x {} turntable + {} vertical reference rows) x {} lasers x {} scan x {} exposures, cameras {:?}: {} frames",
-        deg(&oblique),
+        deg(&c.oblique_elevations()),
         c.entrance_arc_rotations,
         c.entrance_turntable,
         c.entrance_vertical_rows().len(),
