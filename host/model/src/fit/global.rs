@@ -130,19 +130,7 @@ fn reflectance_from_profile(means: &[Option<f64>], bin: f64, dp: Option<&Enterin
 /// emergent distribution is the model's, every view's R is the same and so
 /// is the result.
 fn elevation_weights(cos: &[f64], per_radiance: &dyn Fn(&[f64]) -> Vec<f64>) -> Vec<f64> {
-    let mut order: Vec<usize> = (0..cos.len()).collect();
-    order.sort_by(|&a, &b| cos[a].total_cmp(&cos[b]));
-    // Elevations: (mean cosine, views).
-    let mut groups: Vec<(f64, Vec<usize>)> = Vec::new();
-    for i in order {
-        match groups.last_mut() {
-            Some((c, members)) if cos[i] - *c <= 0.02 => {
-                members.push(i);
-                *c = members.iter().map(|&j| cos[j]).sum::<f64>() / members.len() as f64;
-            }
-            _ => groups.push((cos[i], vec![i])),
-        }
-    }
+    let groups = elevations(cos);
     let nodes: Vec<f64> = groups.iter().map(|(c, _)| c * c).collect();
     // Midpoint rule over x = μ² with the hat functions of the nodes.
     const STEPS: usize = 400;
@@ -172,6 +160,59 @@ fn elevation_weights(cos: &[f64], per_radiance: &dyn Fn(&[f64]) -> Vec<f64>) -> 
         }
     }
     weights
+}
+
+/// The views' elevations, ascending: (mean direction cosine, the views
+/// within 0.02 of it).
+fn elevations(cos: &[f64]) -> Vec<(f64, Vec<usize>)> {
+    let mut order: Vec<usize> = (0..cos.len()).collect();
+    order.sort_by(|&a, &b| cos[a].total_cmp(&cos[b]));
+    let mut groups: Vec<(f64, Vec<usize>)> = Vec::new();
+    for i in order {
+        match groups.last_mut() {
+            Some((c, members)) if cos[i] - *c <= 0.02 => {
+                members.push(i);
+                *c = members.iter().map(|&j| cos[j]).sum::<f64>() / members.len() as f64;
+            }
+            _ => groups.push((cos[i], vec![i])),
+        }
+    }
+    groups
+}
+
+/// A note when the elevations' mean R differ by more than 10 %: the
+/// sample sends its light out otherwise than the model's distribution.
+fn elevation_spread_note(
+    channel: u8,
+    for_r: &[(f64, Vec<Option<f64>>)],
+    bin: f64,
+    dp: Option<&EnteringStripe>,
+    r: f64,
+) -> Option<String> {
+    let cos: Vec<f64> = for_r.iter().map(|(c, _)| *c).collect();
+    let per: Vec<(f64, f64)> = elevations(&cos)
+        .iter()
+        .map(|(c, members)| {
+            let sum: f64 = members
+                .iter()
+                .map(|&i| reflectance_from_profile(&for_r[i].1, bin, dp))
+                .sum();
+            (*c, sum / members.len() as f64)
+        })
+        .collect();
+    let lo = per.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+    let hi = per.iter().map(|p| p.1).fold(0.0, f64::max);
+    (per.len() > 1 && hi > 1.1 * lo).then(|| {
+        let list: Vec<String> = per
+            .iter()
+            .map(|(c, v)| format!("{:.0} deg {v:.4}", c.clamp(-1.0, 1.0).acos().to_degrees()))
+            .collect();
+        format!(
+            "channel {channel}: R read at each view elevation ({}) spreads by {:.0} %: the sample's light leaves at other angles than the model's; R = {r:.4} weighs them over the hemisphere",
+            list.join(", "),
+            100.0 * (hi / lo - 1.0)
+        )
+    })
 }
 
 /// The global term of every channel from the pass-2 stripes of `data`, I(d)
@@ -363,6 +404,13 @@ pub(super) fn fit_global(
             r = next;
         }
         let (r_used, fit, profile) = fit.expect("at least one iteration");
+        notes.extend(elevation_spread_note(
+            c,
+            &means,
+            grid.texel_mm,
+            stripes[c as usize].as_ref(),
+            r,
+        ));
         if r > 1.0 {
             notes.push(format!(
                 "channel {c}: measured R = {r:.4} > 1, clamped to 1"
@@ -416,6 +464,29 @@ mod tests {
         // One elevation: its views share the weight equally (ci).
         let one = elevation_weights(&[0.62, 0.621], &smooth);
         assert_eq!(one, vec![0.5, 0.5]);
+    }
+
+    #[test]
+    fn a_note_names_elevations_that_read_different_r() {
+        let bin = 0.05;
+        let profile = |scale: f64| -> Vec<Option<f64>> {
+            (0..100)
+                .map(|k| Some(scale * (-(k as f64 + 0.5) * bin).exp()))
+                .collect()
+        };
+        let views = |grazing: f64| {
+            vec![
+                (0.78, profile(1.0)),
+                (0.781, profile(1.0)),
+                (0.22, profile(grazing)),
+            ]
+        };
+        let note = elevation_spread_note(1, &views(1.3), bin, None, 2.1).expect("a note");
+        assert!(note.contains("spreads by 30 %"), "{note}");
+        assert!(note.starts_with("channel 1:"), "{note}");
+        assert!(elevation_spread_note(1, &views(1.05), bin, None, 2.0).is_none());
+        // One elevation has nothing to compare.
+        assert!(elevation_spread_note(1, &views(1.3)[..2], bin, None, 2.0).is_none());
     }
 
     #[test]
