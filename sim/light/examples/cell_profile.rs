@@ -5,15 +5,21 @@
 //! prints R (exited over incident photons, specular excluded) and the top's eta;
 //! then `qhm fit-profile out.csv --reflectance R --eta ETA`.
 //!
-//! Options after the four arguments, for one line of the rig's own slab:
-//! `--slab X,Y,DEPTH` (mm, default 300,300,100), `--length L` (mm of lit
-//! line, default 80), `--offset O` (mm of the line from the centre, across
-//! it, default 0; the profile stays on the exit grid's 40 mm around the
-//! slab's centre), `--along-x` (the line along x instead of y). R of a
-//! cellular sample changes from line to line: docs/sim.md.
+//! Options after the four arguments:
+//! - `--lines N`: N parallel lines, evenly across one tile of the sample's
+//!   cells (or 10 mm), `PHOTONS` each; the profile and R are their means. A
+//!   cellular sample's R changes from line to line by several per cent
+//!   (docs/sim.md), so one line is no measure of the material.
+//! - `--slab X,Y,DEPTH` (mm, default 300,300,100), `--length L` (mm of lit
+//!   line, default 80), `--offset O` (mm of the line, or the lines' middle,
+//!   from the centre, across it), `--along-x` (lines along x instead of y):
+//!   one line of the rig's own slab.
 use glam::Vec3;
 use sim_light::*;
 use std::io::Write;
+
+/// Exit grid: cells of 0.25 mm over 40 mm around the slab's centre.
+const GRID: (usize, f32) = (160, 0.25);
 
 fn main() -> Result<(), Error> {
     let mut a = std::env::args().skip(1);
@@ -21,8 +27,8 @@ fn main() -> Result<(), Error> {
     let ch: usize = a.next().and_then(|s| s.parse().ok()).unwrap_or(1);
     let photons: u64 = a.next().and_then(|s| s.parse().ok()).unwrap_or(400_000);
     let out = a.next().unwrap_or("profile.csv".into());
-    let (mut slab, mut length, mut offset, mut along_x) =
-        ([300.0, 300.0, 100.0], 80.0f32, 0.0f32, false);
+    let (mut slab, mut length, mut offset, mut along_x, mut lines) =
+        ([300.0, 300.0, 100.0], 80.0f32, 0.0f32, false, 1usize);
     while let Some(flag) = a.next() {
         let mut value = || {
             a.next()
@@ -37,6 +43,13 @@ fn main() -> Result<(), Error> {
             }
             "--length" => length = value()?.parse().map_err(|_| usage("--length takes mm"))?,
             "--offset" => offset = value()?.parse().map_err(|_| usage("--offset takes mm"))?,
+            "--lines" => {
+                lines = value()?
+                    .parse()
+                    .ok()
+                    .filter(|n| (1..=200).contains(n))
+                    .ok_or_else(|| usage("--lines takes 1 to 200"))?
+            }
             "--along-x" => along_x = true,
             _ => return Err(usage(&format!("unknown option {flag}"))),
         }
@@ -47,53 +60,81 @@ fn main() -> Result<(), Error> {
     };
     s.size_mm = slab;
     let eta = s.surface.eta;
+    let tile = s
+        .volume
+        .inclusions
+        .iter()
+        .find(|i| i.interface_eta.is_some())
+        .map_or(10.0, |i| i.period_mm) as f32;
     let world = World::new(desc, RigTruth::nominal(), SimQuality::ci())?;
     let (dir, across) = if along_x {
         (Vec3::X, Vec3::Y)
     } else {
         (Vec3::Y, Vec3::X)
     };
-    let centre = across * offset;
-    let stripe = Source::Stripe {
-        origin: centre + Vec3::Z * 800.0,
-        centre,
-        dir,
-        length,
-    };
-    let (n, cell) = (160usize, 0.25f32);
-    let grid = ExitGrid::new(n, cell);
-    let t = world.trace(&stripe, ch, photons, 7, Some(&grid));
-    let incident = (t.launched - t.missed) as f64;
-    let counts = grid.values();
+    let (n, cell) = GRID;
+    // Lines on whole grid cells, so their profiles add bin by bin.
+    let shifts: Vec<i64> = (0..lines)
+        .map(|k| {
+            let o = offset + (k as f32 + 0.5 - lines as f32 / 2.0) * tile / lines as f32;
+            (o / cell).round() as i64
+        })
+        .collect();
+    // Bins of distance from each line, over the grid's central 20 mm along it.
+    let reach = n as i64;
+    let mut sum = vec![0f64; 2 * reach as usize];
+    let mut hits = vec![0u32; 2 * reach as usize];
+    let (mut exited, mut incident) = (0u64, 0f64);
     let (j0, j1) = (n / 2 - 40, n / 2 + 40);
-    let per_mm = incident / length as f64;
     let area = (cell * cell) as f64 * (j1 - j0) as f64;
+    for (k, &shift) in shifts.iter().enumerate() {
+        let centre = across * (shift as f32 * cell);
+        let stripe = Source::Stripe {
+            origin: centre + Vec3::Z * 800.0,
+            centre,
+            dir,
+            length,
+        };
+        let grid = ExitGrid::new(n, cell);
+        let t = world.trace(&stripe, ch, photons, 7 + k as u64, Some(&grid));
+        let line_incident = (t.launched - t.missed) as f64;
+        exited += t.exited;
+        incident += line_incident;
+        let counts = grid.values();
+        let per_mm = line_incident / length as f64;
+        for i in 0..n {
+            let at = |j: usize| {
+                if along_x {
+                    counts[i * n + j]
+                } else {
+                    counts[j * n + i]
+                }
+            };
+            let c: u64 = (j0..j1).map(|j| at(j) as u64).sum();
+            let b = (i as i64 - shift + reach - n as i64 / 2) as usize;
+            sum[b] += c as f64 / area / per_mm;
+            hits[b] += 1;
+        }
+        println!("line {k}: offset {:.2} mm, {t:?}", shift as f32 * cell);
+    }
     let mut f = std::fs::File::create(&out).map_err(|e| Error::Io {
         path: out.clone(),
         source: e,
     })?;
     writeln!(f, "distance_mm,intensity_per_mm").unwrap();
-    // Across the line (x for a line along y), over its central 20 mm; the
-    // distance from the line.
-    for i in 0..n {
-        let x = (i as f64 + 0.5) * cell as f64 - n as f64 * cell as f64 / 2.0;
-        let at = |j: usize| {
-            if along_x {
-                counts[i * n + j]
-            } else {
-                counts[j * n + i]
-            }
-        };
-        let c: u64 = (j0..j1).map(|j| at(j) as u64).sum();
-        writeln!(f, "{},{}", x - offset as f64, c as f64 / area / per_mm).unwrap();
+    // Only the distances every line's grid covers.
+    for (b, (&s, &h)) in sum.iter().zip(&hits).enumerate() {
+        if h as usize == lines {
+            let x = (b as f64 - reach as f64 + 0.5) * cell as f64;
+            writeln!(f, "{x},{}", s / lines as f64).unwrap();
+        }
     }
-    println!("{t:?}");
-    println!("R {} eta {eta}", t.exited as f64 / incident);
+    println!("R {} eta {eta}", exited as f64 / incident);
     Ok(())
 }
 
 fn usage(why: &str) -> Error {
     Error::InvalidIllumination(format!(
-        "{why}; usage: cell_profile PRESET CHANNEL PHOTONS OUT.csv [--slab X,Y,DEPTH] [--length L] [--offset O] [--along-x]"
+        "{why}; usage: cell_profile PRESET CHANNEL PHOTONS OUT.csv [--lines N] [--slab X,Y,DEPTH] [--length L] [--offset O] [--along-x]"
     ))
 }
