@@ -41,7 +41,13 @@ fn main() -> Result<(), Error> {
                     .try_into()
                     .map_err(|_| usage("--slab takes X,Y,DEPTH in mm"))?;
             }
-            "--length" => length = value()?.parse().map_err(|_| usage("--length takes mm"))?,
+            "--length" => {
+                length = value()?
+                    .parse()
+                    .ok()
+                    .filter(|l: &f32| *l > 0.0)
+                    .ok_or_else(|| usage("--length takes mm above 0"))?
+            }
             "--offset" => offset = value()?.parse().map_err(|_| usage("--offset takes mm"))?,
             "--lines" => {
                 lines = value()?
@@ -80,6 +86,13 @@ fn main() -> Result<(), Error> {
             (o / cell).round() as i64
         })
         .collect();
+    // Every line on the slab and inside the exit grid.
+    let half = (slab[if along_x { 1 } else { 0 }] as f32 / 2.0).min(n as f32 * cell / 2.0);
+    if shifts.iter().any(|&k| (k as f32 * cell).abs() >= half) {
+        return Err(usage(&format!(
+            "--offset puts a line beyond {half} mm of the centre (the slab or the exit grid)"
+        )));
+    }
     // Bins of distance from each line, over the grid's central 20 mm along it.
     let reach = n as i64;
     let mut sum = vec![0f64; 2 * reach as usize];

@@ -202,7 +202,7 @@ fn elevation_spread_note(
         .collect();
     let lo = per.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
     let hi = per.iter().map(|p| p.1).fold(0.0, f64::max);
-    (per.len() > 1 && hi > 1.1 * lo).then(|| {
+    (per.len() > 1 && lo > 0.0 && hi > 1.1 * lo).then(|| {
         let list: Vec<String> = per
             .iter()
             .map(|(c, v)| format!("{:.0} deg {v:.4}", c.clamp(-1.0, 1.0).acos().to_degrees()))
