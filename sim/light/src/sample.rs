@@ -178,16 +178,16 @@ pub const MATERIAL_PRESETS: &[(&str, Coefficients, f64)] = &[
     (
         "bread-crumb",
         Coefficients {
-            sigma_s: [3.1, 3.15, 2.95],
-            sigma_a: [0.053, 0.12, 0.22],
+            sigma_s: [2.42, 2.41, 2.04],
+            sigma_a: [0.057, 0.127, 0.237],
         },
         1.45,
     ),
     (
         "rice-cake-wall",
         Coefficients {
-            sigma_s: [2.78, 2.6, 2.85],
-            sigma_a: [0.006, 0.098, 0.74],
+            sigma_s: [1.79, 1.98, 1.87],
+            sigma_a: [0.00636, 0.1125, 0.716],
         },
         1.5,
     ),
