@@ -24,7 +24,7 @@
 
 use glam::Vec3;
 
-use crate::microfacet::Dielectric;
+use crate::microfacet::{Dielectric, SingleScatteringAlbedo};
 use crate::rng::Rng;
 
 /// Where a line meets a cell wall.
@@ -129,64 +129,6 @@ fn floor_f(x: f32) -> f32 {
     }
 }
 
-/// Bins of the albedo tables over |cos theta|.
-const ALBEDO_BINS: usize = 64;
-/// Samples per bin of the albedo tables.
-const ALBEDO_SAMPLES: usize = 4096;
-
-/// The wall's single-scattering albedo A(u) (importance mode, what the
-/// photon walk keeps per sample), per side and |cos theta| of u, local
-/// frame (+z the air). The walls return their masked share to the lobe, so
-/// light arriving from u leaves towards v with density f(u, v) |cos v| / A(u):
-/// the photon walk's splats and the camera paths' weights divide by it.
-#[derive(Debug, Clone)]
-pub struct WallAlbedo {
-    /// [air side, wall side][bin]: mean at bin centres.
-    table: [[f32; ALBEDO_BINS]; 2],
-}
-
-impl WallAlbedo {
-    /// Stratified Monte Carlo, seeded: the same table every render.
-    pub fn new(wall: &Dielectric) -> WallAlbedo {
-        let mut table = [[1.0f32; ALBEDO_BINS]; 2];
-        if wall.mf.effectively_smooth() {
-            return WallAlbedo { table };
-        }
-        let mut rng = Rng::new(0x57a1_1a1b, 0);
-        for (side, row) in table.iter_mut().enumerate() {
-            for (b, a) in row.iter_mut().enumerate() {
-                let mu = (b as f32 + 0.5) / ALBEDO_BINS as f32;
-                let z = if side == 0 { mu } else { -mu };
-                let u = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, z);
-                let n = (ALBEDO_SAMPLES as f32).sqrt() as usize;
-                let mut sum = 0.0f64;
-                for i in 0..n {
-                    for j in 0..n {
-                        let uv = [
-                            (i as f32 + rng.uniform()) / n as f32,
-                            (j as f32 + rng.uniform()) / n as f32,
-                        ];
-                        if let Some((_, weight)) = wall.sample_importance(u, rng.uniform(), uv) {
-                            sum += weight.min(1.0) as f64;
-                        }
-                    }
-                }
-                *a = (sum / (n * n) as f64) as f32;
-            }
-        }
-        WallAlbedo { table }
-    }
-
-    /// A(u) for a local direction u, linear between bin centres.
-    pub fn at(&self, u: Vec3) -> f32 {
-        let row = &self.table[(u.z < 0.0) as usize];
-        let x = (u.z.abs() * ALBEDO_BINS as f32 - 0.5).clamp(0.0, (ALBEDO_BINS - 1) as f32);
-        let i = (x as usize).min(ALBEDO_BINS - 2);
-        let f = x - i as f32;
-        (row[i] * (1.0 - f) + row[i + 1] * f).max(1e-3)
-    }
-}
-
 /// A periodic tiling of air cells (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Cells {
@@ -196,7 +138,7 @@ pub struct Cells {
     /// in the cells, and the GGX roughness of the wall surfaces.
     pub wall: Dielectric,
     /// A(u) of `wall`.
-    pub albedo: WallAlbedo,
+    pub albedo: SingleScatteringAlbedo,
     /// Porosity (air volume fraction) of the tile, measured on a lattice.
     pub porosity: f64,
     /// Number of spheres in the tile.
@@ -350,7 +292,7 @@ impl Cells {
         let wall = Dielectric::new(eta, roughness);
         Cells {
             period: l,
-            albedo: WallAlbedo::new(&wall),
+            albedo: SingleScatteringAlbedo::new(&wall),
             wall,
             porosity: measured,
             count: centres.len(),
@@ -668,20 +610,6 @@ impl Cells {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn albedo_table_is_below_one_and_falls_towards_grazing() {
-        let a = WallAlbedo::new(&Dielectric::new(1.5, 0.3));
-        for z in [0.95f32, -0.95] {
-            let s = (1.0 - z * z).sqrt();
-            let v = a.at(Vec3::new(s, 0.0, z));
-            assert!(v > 0.85 && v <= 1.0, "{z} {v}");
-        }
-        let g = a.at(Vec3::new(0.999, 0.0, 0.04));
-        assert!(g < a.at(Vec3::new(0.3, 0.0, 0.95)), "{g}");
-        let smooth = WallAlbedo::new(&Dielectric::new(1.5, 0.0));
-        assert_eq!(smooth.at(Vec3::Z), 1.0);
-    }
 
     fn cells() -> Cells {
         Cells::build(0.75, [0.2, 0.8], 8.0, 1.45, 0.3, 3)

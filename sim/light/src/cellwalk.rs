@@ -10,7 +10,7 @@
 //! per crossing) would act as a strong absorption, so a masked or
 //! rejected sample is drawn again: the walls conserve energy, their
 //! multiple-scattered share returned to the single-scattering lobe (its
-//! density f |cos| / A, A the wall's albedo [`crate::cells::WallAlbedo`]).
+//! density f |cos| / A, A the wall's albedo [`crate::microfacet::SingleScatteringAlbedo`]).
 //! Inside the walls it random-walks as in a homogeneous medium. Every
 //! boundary event is splatted into every camera through that density (the
 //! BSDF at the top, f / A at a wall), with visibility traced through the
@@ -20,12 +20,12 @@ use glam::Vec3;
 
 use crate::cells::Cells;
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, ResampledLobe, TransportMode};
+use crate::microfacet::{Dielectric, TransportMode};
 use crate::rng::{WalkRng, exp1_from_bits};
 use crate::surface::HeightField;
 use crate::walk::{
     Local, MAX_EVENTS, MAX_INTERFACES, Pass, SurfaceKind, Tally, geometric_events,
-    sample_uniform_sphere_bits,
+    resampled_direction, sample_uniform_sphere_bits,
 };
 
 /// Which boundary a hit is on.
@@ -317,10 +317,7 @@ impl Pass<'_> {
                     |wi| bsdf.f(wo, wi, TransportMode::Importance) * inv_a,
                     visible,
                 );
-                let lobe = ResampledLobe::new(bsdf, wo);
-                (0..64).find_map(|_| {
-                    lobe.try_sample(rng.uniform(), [rng.uniform(), rng.uniform()], rng.uniform())
-                })
+                resampled_direction(bsdf, wo, rng)
             }
         }
     }

@@ -11,6 +11,7 @@
 use glam::Vec3;
 use std::f32::consts::PI;
 
+use crate::rng::Rng;
 use crate::walk::unit_circle_from_bits;
 
 /// Whether a BSDF value is for radiance or for flux-carrying particles.
@@ -241,6 +242,65 @@ impl ResampledLobe {
         let zi = wi.z.abs();
         let s = (zi * zi + a * a * (1.0 - zi * zi).max(0.0)).sqrt();
         (u_keep * (self.k_o * zi + s) < (1.0 + self.k_o) * zi).then_some(wi)
+    }
+}
+
+/// Bins of the albedo tables over |cos theta|.
+const ALBEDO_BINS: usize = 64;
+/// Samples per bin of the albedo tables.
+const ALBEDO_SAMPLES: usize = 4096;
+
+/// A rough dielectric's single-scattering albedo A(u) (importance mode,
+/// what the photon walk keeps per sample), per side and |cos theta| of u,
+/// local frame (+z the air). A boundary that returns its masked share to
+/// the lobe (the cell walls; a top with `conserve_energy`) sends light
+/// arriving from u towards v with density f(u, v) |cos v| / A(u): the
+/// photon walk's splats and the camera paths' weights divide by it.
+#[derive(Debug, Clone)]
+pub struct SingleScatteringAlbedo {
+    /// [air side, wall side][bin]: mean at bin centres.
+    table: [[f32; ALBEDO_BINS]; 2],
+}
+
+impl SingleScatteringAlbedo {
+    /// Stratified Monte Carlo, seeded: the same table every render.
+    pub fn new(bsdf: &Dielectric) -> SingleScatteringAlbedo {
+        let mut table = [[1.0f32; ALBEDO_BINS]; 2];
+        if bsdf.mf.effectively_smooth() {
+            return SingleScatteringAlbedo { table };
+        }
+        let mut rng = Rng::new(0x57a1_1a1b, 0);
+        for (side, row) in table.iter_mut().enumerate() {
+            for (b, a) in row.iter_mut().enumerate() {
+                let mu = (b as f32 + 0.5) / ALBEDO_BINS as f32;
+                let z = if side == 0 { mu } else { -mu };
+                let u = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, z);
+                let n = (ALBEDO_SAMPLES as f32).sqrt() as usize;
+                let mut sum = 0.0f64;
+                for i in 0..n {
+                    for j in 0..n {
+                        let uv = [
+                            (i as f32 + rng.uniform()) / n as f32,
+                            (j as f32 + rng.uniform()) / n as f32,
+                        ];
+                        if let Some((_, weight)) = bsdf.sample_importance(u, rng.uniform(), uv) {
+                            sum += weight.min(1.0) as f64;
+                        }
+                    }
+                }
+                *a = (sum / (n * n) as f64) as f32;
+            }
+        }
+        SingleScatteringAlbedo { table }
+    }
+
+    /// A(u) for a local direction u, linear between bin centres.
+    pub fn at(&self, u: Vec3) -> f32 {
+        let row = &self.table[(u.z < 0.0) as usize];
+        let x = (u.z.abs() * ALBEDO_BINS as f32 - 0.5).clamp(0.0, (ALBEDO_BINS - 1) as f32);
+        let i = (x as usize).min(ALBEDO_BINS - 2);
+        let f = x - i as f32;
+        (row[i] * (1.0 - f) + row[i + 1] * f).max(1e-3)
     }
 }
 
@@ -499,7 +559,20 @@ impl Dielectric {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rng::Rng;
+
+    #[test]
+    fn albedo_table_is_below_one_and_falls_towards_grazing() {
+        let a = SingleScatteringAlbedo::new(&Dielectric::new(1.5, 0.3));
+        for z in [0.95f32, -0.95] {
+            let s = (1.0 - z * z).sqrt();
+            let v = a.at(Vec3::new(s, 0.0, z));
+            assert!(v > 0.85 && v <= 1.0, "{z} {v}");
+        }
+        let g = a.at(Vec3::new(0.999, 0.0, 0.04));
+        assert!(g < a.at(Vec3::new(0.3, 0.0, 0.95)), "{g}");
+        let smooth = SingleScatteringAlbedo::new(&Dielectric::new(1.5, 0.0));
+        assert_eq!(smooth.at(Vec3::Z), 1.0);
+    }
 
     fn sph(theta: f32, phi: f32) -> Vec3 {
         Vec3::new(

@@ -18,7 +18,9 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
+use crate::microfacet::{
+    Dielectric, ResampledLobe, SingleScatteringAlbedo, TransportMode, fr_dielectric, refract,
+};
 use crate::rng::{WalkRng, exp1_from_bits, mix64, unit_f32};
 use crate::sample::{COLOUR_PATTERN, TargetDesc, colour_patch_at};
 use crate::surface::HeightField;
@@ -54,6 +56,10 @@ pub struct Scene {
     pub surface: HeightField,
     pub kind: SurfaceKind,
     pub volume: Option<Volume>,
+    /// A(u) of the dielectric top when it keeps the share its lobe masks
+    /// (`SurfaceDesc::conserve_energy`, rough tops only): photons resample
+    /// until a direction survives, and splats divide by A.
+    pub top_albedo: Option<SingleScatteringAlbedo>,
 }
 
 impl Scene {
@@ -367,6 +373,15 @@ pub(crate) fn surviving_direction(bsdf: &Dielectric, wo: Vec3, rng: &mut WalkRng
     }
 }
 
+/// A direction from a boundary that keeps the share its lobe masks: drawn
+/// again until one survives, so light from `wo` leaves towards wi with
+/// density f(wo, wi) |cos wi| / A(wo). None only after 64 failed draws.
+pub(crate) fn resampled_direction(bsdf: &Dielectric, wo: Vec3, rng: &mut WalkRng) -> Option<Vec3> {
+    let lobe = ResampledLobe::new(bsdf, wo);
+    (0..64)
+        .find_map(|_| lobe.try_sample(rng.uniform(), [rng.uniform(), rng.uniform()], rng.uniform()))
+}
+
 /// Uniform direction on the sphere, paired with `uniform_sphere_pdf`.
 #[inline(always)]
 pub fn sample_uniform_sphere(u: [f32; 2]) -> Vec3 {
@@ -584,8 +599,9 @@ impl Pass<'_> {
 
     /// One crossing of the rough boundary: splat the light the boundary sends
     /// towards the cameras, then sample reflection or refraction, with Russian
-    /// roulette on the sample's weight. `None` (counted as surface loss) ends
-    /// the photon.
+    /// roulette on the sample's weight (or, on a top that keeps its energy,
+    /// drawn again until a sample survives). `None` (counted as surface loss)
+    /// ends the photon.
     #[allow(clippy::too_many_arguments)]
     fn boundary_event(
         &self,
@@ -613,15 +629,24 @@ impl Pass<'_> {
         rng: &mut WalkRng,
         visible: impl Fn(Vec3, Vec3) -> bool,
     ) -> Option<Vec3> {
+        let inv_a = self
+            .scene
+            .top_albedo
+            .as_ref()
+            .map_or(1.0, |a| 1.0 / a.at(wo));
         if splat {
             self.splat_with(
                 x,
                 local,
-                |wi| bsdf.f(wo, wi, TransportMode::Importance),
+                |wi| bsdf.f(wo, wi, TransportMode::Importance) * inv_a,
                 visible,
             );
         }
-        surviving_direction(bsdf, wo, rng)
+        if self.scene.top_albedo.is_some() {
+            resampled_direction(bsdf, wo, rng)
+        } else {
+            surviving_direction(bsdf, wo, rng)
+        }
     }
 
     /// Next-event estimate from a scattering vertex `p` (isotropic phase)
@@ -738,7 +763,13 @@ impl Pass<'_> {
                 let tf = 1.0 - fr_dielectric(wl.z, bsdf.eta);
                 tf * wl.z / (bsdf.eta * bsdf.eta * wo.z.abs())
             } else {
-                bsdf.f(local.to_local(-dir), wl, TransportMode::Importance) * wl.z / pdf
+                let wo = local.to_local(-dir);
+                let inv_a = self
+                    .scene
+                    .top_albedo
+                    .as_ref()
+                    .map_or(1.0, |a| 1.0 / a.at(wo));
+                bsdf.f(wo, wl, TransportMode::Importance) * wl.z * inv_a / pdf
             };
             let v = phase * tr * boundary * inv / (cam.norm * q);
             if v.is_finite() && v > 0.0 {

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Error;
 use crate::medium::Volume;
-use crate::microfacet::Dielectric;
+use crate::microfacet::{Dielectric, SingleScatteringAlbedo};
 use crate::rig::RigTruth;
 use crate::sample::{Relief, SceneDesc, TargetDesc};
 use crate::sensor::Sensor;
@@ -213,13 +213,14 @@ impl World {
                         )
                     }
                 };
+                let top = Dielectric::new(sf.eta as f32, sf.roughness as f32);
+                let top_albedo = (sf.conserve_energy && !top.mf.effectively_smooth())
+                    .then(|| SingleScatteringAlbedo::new(&top));
                 Scene {
                     surface,
-                    kind: SurfaceKind::Dielectric(Dielectric::new(
-                        sf.eta as f32,
-                        sf.roughness as f32,
-                    )),
+                    kind: SurfaceKind::Dielectric(top),
                     volume: Some(volume),
+                    top_albedo,
                 }
             }
             SceneDesc::Target { target } => {
@@ -252,6 +253,7 @@ impl World {
                     surface,
                     kind: SurfaceKind::Lambertian(target.clone()),
                     volume: None,
+                    top_albedo: None,
                 }
             }
         };

@@ -14,7 +14,7 @@
 //!   f(u, v) |cos v| / A(u), A(u) the single-scattering albedo from u. A
 //!   camera path needs the adjoint, f_rad(v, u) / A(u): the sampled
 //!   weight divided by the albedo of the direction sampled
-//!   ([`WallAlbedo`], tabulated once per render).
+//!   ([`SingleScatteringAlbedo`], tabulated once per render).
 //!
 //! Delta lights reach a path only through the air, so each is connected at
 //! the last interface before it. Every light path starts light -> x1 with
@@ -269,7 +269,7 @@ impl Ctx<'_> {
             beta *= if wall {
                 s.weight / cells.albedo.at(s.wi)
             } else {
-                s.weight
+                s.weight * self.top_inv_albedo(s.wi)
             };
             if !(beta > 0.0 && beta.is_finite()) {
                 break;
@@ -336,9 +336,11 @@ impl Ctx<'_> {
             if !(f > 0.0 && f.is_finite()) {
                 continue;
             }
-            if wall {
-                f /= cells.albedo.at(wi);
-            }
+            f *= if wall {
+                1.0 / cells.albedo.at(wi)
+            } else {
+                self.top_inv_albedo(wi)
+            };
             let o = b.x + ng * self.eps;
             if !matches!(
                 self.air_ray(cells, o, wl, wall, dist - 2.0 * self.eps),
@@ -406,9 +408,11 @@ impl Ctx<'_> {
             if !(f > 0.0 && f.is_finite()) {
                 continue;
             }
-            if wall {
-                f /= cells.albedo.at(wi);
-            }
+            f *= if wall {
+                1.0 / cells.albedo.at(wi)
+            } else {
+                self.top_inv_albedo(wi)
+            };
             if !matches!(
                 self.air_ray(cells, b.x + ng * self.eps, wl, wall, dist - 2.0 * self.eps),
                 AirEnd::Free { .. }
@@ -435,7 +439,7 @@ mod tests {
     #[test]
     fn wall_weight_is_the_adjoint_of_the_photon_walks_resampling() {
         let wall = Dielectric::new(1.45, 0.3);
-        let albedo = crate::cells::WallAlbedo::new(&wall);
+        let albedo = crate::microfacet::SingleScatteringAlbedo::new(&wall);
         let mut rng = Rng::new(11, 2);
         let cos_cone = 15f32.to_radians().cos();
         let omega = 2.0 * std::f32::consts::PI * (1.0 - cos_cone);

@@ -59,7 +59,9 @@ use super::bvh::{Bvh, Hit};
 use super::cellular::check_lights;
 use super::{DeltaLight, ObjectError, ObjectScene};
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, TransportMode, fr_dielectric, refract};
+use crate::microfacet::{
+    Dielectric, SingleScatteringAlbedo, TransportMode, fr_dielectric, refract,
+};
 use crate::rng::{WalkRng, exp1_from_bits, mix64};
 use crate::walk::sample_uniform_sphere_bits;
 
@@ -218,6 +220,10 @@ pub(super) struct Ctx<'a> {
     vol: Volume,
     pub(super) tables: [Vec<(f32, f32)>; 3],
     pub(super) bsdf: Dielectric,
+    /// A(u) of `bsdf` when the sample's top keeps the share its lobe masks
+    /// (`SurfaceDesc::conserve_energy`): the adjoint of the photon walk's
+    /// resampling divides by the albedo of the light-side direction.
+    top_albedo: Option<SingleScatteringAlbedo>,
     smooth: bool,
     pub(super) eps: f32,
     /// Finite-difference step: mm across a directional beam, radians out
@@ -322,6 +328,8 @@ impl<'a> Ctx<'a> {
             vol,
             tables,
             smooth: bsdf.mf.effectively_smooth(),
+            top_albedo: (sf.conserve_energy && !bsdf.mf.effectively_smooth())
+                .then(|| SingleScatteringAlbedo::new(&bsdf)),
             bsdf,
             eps: diag * 2e-5,
             fd_step: 1e-4,
@@ -480,7 +488,7 @@ impl<'a> Ctx<'a> {
                 inside = !inside;
                 entered = true;
             }
-            beta *= s.weight;
+            beta *= s.weight * self.top_inv_albedo(s.wi);
             if !(beta > 0.0 && beta.is_finite()) {
                 break;
             }
@@ -494,6 +502,12 @@ impl<'a> Ctx<'a> {
             primary = false;
         }
         l
+    }
+
+    /// 1 / A(u) of the sample's top, u the light-side direction (local);
+    /// 1 where the top loses the share its lobe masks.
+    pub(super) fn top_inv_albedo(&self, u: Vec3) -> f32 {
+        self.top_albedo.as_ref().map_or(1.0, |a| 1.0 / a.at(u))
     }
 
     /// Reflection of the delta lights at an outside surface point (rough
@@ -514,7 +528,7 @@ impl<'a> Ctx<'a> {
             {
                 continue;
             }
-            l += f * wi.z.abs() * e[c];
+            l += f * wi.z.abs() * self.top_inv_albedo(wi) * e[c];
         }
         l
     }
@@ -748,7 +762,7 @@ impl<'a> Ctx<'a> {
         }
         let tr = self.transmittance(p, w, h.t, c, rng);
         // phase / pdf(w) = (1 / 4 pi) / (1 / 4 pi)
-        f * wi.z.abs() * e[c] * tr / q
+        f * wi.z.abs() * self.top_inv_albedo(wi) * e[c] * tr / q
     }
 
     /// Transmittance from p along w over s: exact when homogeneous, ratio

@@ -143,6 +143,51 @@ fn white_furnace_sphere_is_uniform() {
     assert!(img2.mean()[0] < 0.9, "{:?}", img2.mean());
 }
 
+#[test]
+fn white_furnace_holds_under_a_rough_top_that_conserves_energy() {
+    // The same furnace under a rough top (GGX 0.35): the camera paths'
+    // weights, divided by the albedo of the light-side direction, give
+    // back exactly the sky when the top keeps its masked share, and less
+    // when it loses it.
+    let mut sample = homogeneous(1.0, 2.0, 1.3);
+    sample.surface.roughness = 0.35;
+    sample.surface.conserve_energy = true;
+    let scene = ObjectScene {
+        mesh: sphere_mesh(2.0, 48, 24),
+        sample,
+        camera: PinholeCamera {
+            eye: Vec3::new(0.0, -12.0, 0.0),
+            target: Vec3::ZERO,
+            up: Vec3::Z,
+            fov_y: 0.3,
+        },
+        lights: vec![],
+        env: Some(uniform_env(1.0)),
+        env_visible: true,
+    };
+    let opts = RenderOptions {
+        width: 16,
+        height: 16,
+        spp: 16,
+        seed: 3,
+        ..RenderOptions::default()
+    };
+    let img = render_object(&scene, &opts, &|_| {}, None).unwrap();
+    let (m, e) = (img.mean(), img.mean_rel_error());
+    for c in 0..3 {
+        assert!(
+            (m[c] - 1.0).abs() < 4.0 * e[c] + 0.005,
+            "channel {c}: {} +- {}",
+            m[c],
+            e[c]
+        );
+    }
+    let mut lossy = scene.clone();
+    lossy.sample.surface.conserve_energy = false;
+    let m2 = render_object(&lossy, &opts, &|_| {}, None).unwrap().mean();
+    assert!(m2[0] < 0.97, "{m2:?}");
+}
+
 /// Single scattering below a flat smooth boundary (one event, then the
 /// path ends): L = a T_i T_o E cos_i / (4 pi eta^2 (cos_ti + cos_to)).
 fn single_scattering(theta_i: f32, theta_o: f32, eta: f32, albedo: f32, e: f32) -> f32 {
