@@ -204,9 +204,9 @@ impl PlanConfig {
                 reflectance_arc_rotations: 4,
                 reflectance_turntable: 4,
                 scan_positions: 6,
-                // One line per mm: a two-material sample's f(w_i) is within
-                // 1.6 % of the true exitance ratio with 24, 3.6 % with 12
-                // (docs/capture.md).
+                // One line per mm: a two-material sample's f(w_i), each
+                // direction on its own, is within 1.6 % of the true
+                // exitance ratio with 24, 3.6 % with 12 (docs/capture.md).
                 entrance_scan_positions: Some(24),
                 laser_exposures: vec![0.0000625, 0.0005, 0.004, 0.032],
                 lamp_exposures: vec![0.001, 0.008, 0.064],
