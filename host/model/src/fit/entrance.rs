@@ -276,7 +276,9 @@ fn pool_azimuths(measured: &mut [Measured], notes: &mut Vec<String>) {
             _ => rings.push(vec![i]),
         }
     }
+    let mut pooled = Vec::new();
     for ring in rings.iter().filter(|r| r.len() >= 2) {
+        let mut channels = String::new();
         for c in 0..3 {
             let (v, w): (Vec<f64>, Vec<f64>) = ring
                 .iter()
@@ -295,6 +297,7 @@ fn pool_azimuths(measured: &mut [Measured], notes: &mut Vec<String>) {
                 for &i in ring {
                     measured[i].value[c] = mean;
                 }
+                channels.push(['R', 'G', 'B'][c]);
             } else {
                 notes.push(format!(
                     "entrance function: channel {c} at {:.1} deg: the azimuths' f differ beyond their errors (chi2 {chi2:.1} over {dof} degrees of freedom), each kept",
@@ -302,6 +305,19 @@ fn pool_azimuths(measured: &mut [Measured], notes: &mut Vec<String>) {
                 ));
             }
         }
+        if !channels.is_empty() {
+            pooled.push(format!(
+                "{:.1} deg ({} directions, {channels})",
+                theta(&measured[ring[0]]).to_degrees(),
+                ring.len()
+            ));
+        }
+    }
+    if !pooled.is_empty() {
+        notes.push(format!(
+            "entrance function: the azimuths at {} agree within their errors and hold their weighted mean",
+            pooled.join(", ")
+        ));
     }
 }
 
@@ -531,7 +547,12 @@ mod tests {
         }
         assert!((m[0].value[1] - 1.20).abs() < 1e-3, "{:?}", m[0]);
         assert_eq!(m[4], thirty, "a ring of one stays");
-        assert!(notes.is_empty(), "{notes:?}");
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(
+            notes[0].contains("60.0 deg (4 directions, RGB) agree"),
+            "{notes:?}"
+        );
+        notes.clear();
         // an anisotropic one: the same values known to 0.5 % and the rig's
         // floor (chi2 69)
         let mut m = vec![

@@ -7,7 +7,8 @@
 //!
 //! The physics is [`crate::cellwalk`]'s, traced the other way:
 //! - the mesh boundary is the sample's rough dielectric, single-scattering
-//!   microfacet model (the masked share lost), as the slab's top;
+//!   microfacet model (the masked share lost, or kept as at a wall with
+//!   `conserve_energy`), as the slab's top;
 //! - a cell wall is the wall dielectric with its masked share returned to
 //!   the lobe: the photon walk resamples until a sample survives, so a
 //!   photon arriving from u leaves towards v with density
@@ -336,11 +337,11 @@ impl Ctx<'_> {
             if !(f > 0.0 && f.is_finite()) {
                 continue;
             }
-            f *= if wall {
-                1.0 / cells.albedo.at(wi)
+            if wall {
+                f /= cells.albedo.at(wi);
             } else {
-                self.top_inv_albedo(wi)
-            };
+                f *= self.top_inv_albedo(wi);
+            }
             let o = b.x + ng * self.eps;
             if !matches!(
                 self.air_ray(cells, o, wl, wall, dist - 2.0 * self.eps),
@@ -408,11 +409,11 @@ impl Ctx<'_> {
             if !(f > 0.0 && f.is_finite()) {
                 continue;
             }
-            f *= if wall {
-                1.0 / cells.albedo.at(wi)
+            if wall {
+                f /= cells.albedo.at(wi);
             } else {
-                self.top_inv_albedo(wi)
-            };
+                f *= self.top_inv_albedo(wi);
+            }
             if !matches!(
                 self.air_ray(cells, b.x + ng * self.eps, wl, wall, dist - 2.0 * self.eps),
                 AirEnd::Free { .. }
