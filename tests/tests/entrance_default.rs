@@ -11,9 +11,21 @@ use qhm_acquire::Scale;
 #[test]
 #[ignore = "minutes: a default-scale capture (about 4 min on 2 cores)"]
 fn default_scale_entrance_function_of_the_two_material_sample() {
+    // Measured (seed 1): 1.6 %.
+    entrance_within_3_percent("two-material");
+}
+
+#[test]
+#[ignore = "minutes: a default-scale capture of the cellular bread (about 13 min on 2 cores)"]
+fn default_scale_entrance_function_of_the_cellular_bread() {
+    // Measured (seed 1): 1.2 %; each direction on its own, before the fit
+    // pools the azimuths at one elevation, 3.9 %.
+    entrance_within_3_percent("bread");
+}
+
+fn entrance_within_3_percent(sample: &str) {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("demo");
-    let sample = "two-material";
     let opts = DemoOptions {
         sample: sample.into(),
         scale: Scale::Default,
@@ -37,8 +49,7 @@ fn default_scale_entrance_function_of_the_two_material_sample() {
     // on four azimuths.
     assert_eq!(checks.len(), 9);
     let worst = worst_error(&checks);
-    eprintln!("worst |fitted f / true exitance ratio - 1|: {worst:.4}");
-    // Measured (seed 1): 1.6 %.
+    eprintln!("{sample}: worst |fitted f / true exitance ratio - 1|: {worst:.4}");
     assert!(worst < 0.03, "f against the true exitance ratio: {worst}");
     // A fit 5 % off at one direction fails the same bound.
     let mut off = checks.clone();
