@@ -16,7 +16,6 @@
 //!   one line of the rig's own slab.
 use glam::Vec3;
 use sim_light::*;
-use std::io::Write;
 
 /// Exit grid: cells of 0.25 mm over 40 mm around the slab's centre.
 const GRID: (usize, f32) = (160, 0.25);
@@ -130,18 +129,18 @@ fn main() -> Result<(), Error> {
         }
         println!("line {k}: offset {:.2} mm, {t:?}", shift as f32 * cell);
     }
-    let mut f = std::fs::File::create(&out).map_err(|e| Error::Io {
-        path: out.clone(),
-        source: e,
-    })?;
-    writeln!(f, "distance_mm,intensity_per_mm").unwrap();
+    let mut csv = String::from("distance_mm,intensity_per_mm\n");
     // Only the distances every line's grid covers.
     for (b, (&s, &h)) in sum.iter().zip(&hits).enumerate() {
         if h as usize == lines {
             let x = (b as f64 - reach as f64 + 0.5) * cell as f64;
-            writeln!(f, "{x},{}", s / lines as f64).unwrap();
+            csv += &format!("{x},{}\n", s / lines as f64);
         }
     }
+    std::fs::write(&out, csv).map_err(|e| Error::Io {
+        path: out.clone(),
+        source: e,
+    })?;
     println!("R {} eta {eta}", exited as f64 / incident);
     Ok(())
 }

@@ -31,6 +31,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::Error;
+use crate::microfacet::{Dielectric, SingleScatteringAlbedo};
 
 /// Optical coefficients of one material: reduced scattering and absorption.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -259,6 +260,21 @@ fn default_bump_scale() -> f64 {
 }
 fn default_size() -> [f64; 3] {
     [60.0, 60.0, 20.0]
+}
+
+impl SurfaceDesc {
+    /// The top's rough dielectric.
+    pub fn dielectric(&self) -> Dielectric {
+        Dielectric::new(self.eta as f32, self.roughness as f32)
+    }
+
+    /// A(u) of the top when it keeps the share its lobe masks
+    /// (`conserve_energy` on a rough top); None where it loses it.
+    pub fn kept_albedo(&self) -> Option<SingleScatteringAlbedo> {
+        let top = self.dielectric();
+        (self.conserve_energy && !top.mf.effectively_smooth())
+            .then(|| SingleScatteringAlbedo::new(&top))
+    }
 }
 
 impl Default for SurfaceDesc {

@@ -63,6 +63,12 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// 1 / A(u) of the top, u the light-side direction (local); 1 where the
+    /// top loses the share its lobe masks.
+    pub fn top_inv_albedo(&self, u: Vec3) -> f32 {
+        self.top_albedo.as_ref().map_or(1.0, |a| 1.0 / a.at(u))
+    }
+
     /// Lambertian reflectance of a target at (x, y).
     pub fn target_albedo(&self, x: f32, y: f32, ch: usize) -> f32 {
         let SurfaceKind::Lambertian(t) = &self.kind else {
@@ -629,12 +635,8 @@ impl Pass<'_> {
         rng: &mut WalkRng,
         visible: impl Fn(Vec3, Vec3) -> bool,
     ) -> Option<Vec3> {
-        let inv_a = self
-            .scene
-            .top_albedo
-            .as_ref()
-            .map_or(1.0, |a| 1.0 / a.at(wo));
         if splat {
+            let inv_a = self.scene.top_inv_albedo(wo);
             self.splat_with(
                 x,
                 local,
@@ -764,11 +766,7 @@ impl Pass<'_> {
                 tf * wl.z / (bsdf.eta * bsdf.eta * wo.z.abs())
             } else {
                 let wo = local.to_local(-dir);
-                let inv_a = self
-                    .scene
-                    .top_albedo
-                    .as_ref()
-                    .map_or(1.0, |a| 1.0 / a.at(wo));
+                let inv_a = self.scene.top_inv_albedo(wo);
                 bsdf.f(wo, wl, TransportMode::Importance) * wl.z * inv_a / pdf
             };
             let v = phase * tr * boundary * inv / (cam.norm * q);

@@ -6,7 +6,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::Error;
 use crate::medium::Volume;
-use crate::microfacet::{Dielectric, SingleScatteringAlbedo};
 use crate::rig::RigTruth;
 use crate::sample::{Relief, SceneDesc, TargetDesc};
 use crate::sensor::Sensor;
@@ -213,14 +212,11 @@ impl World {
                         )
                     }
                 };
-                let top = Dielectric::new(sf.eta as f32, sf.roughness as f32);
-                let top_albedo = (sf.conserve_energy && !top.mf.effectively_smooth())
-                    .then(|| SingleScatteringAlbedo::new(&top));
                 Scene {
                     surface,
-                    kind: SurfaceKind::Dielectric(top),
+                    kind: SurfaceKind::Dielectric(sf.dielectric()),
                     volume: Some(volume),
-                    top_albedo,
+                    top_albedo: sf.kept_albedo(),
                 }
             }
             SceneDesc::Target { target } => {

@@ -8,8 +8,8 @@ use rayon::prelude::*;
 use super::FitOptions;
 use super::bins::DistanceBins;
 use super::stripes::{
-    NEAR_VERTICAL_COS, SAME_LIGHT_DIR, SPECULAR_VIEW_COS, VERTICAL_KEY, cos_to_mirror, dir_key,
-    f32v,
+    NEAR_VERTICAL_COS, SAME_LIGHT_DIR, SPECULAR_VIEW_COS, VERTICAL_KEY, ascending_runs,
+    cos_to_mirror, dir_key, f32v,
 };
 use crate::ModelError;
 use crate::fresnel;
@@ -267,15 +267,8 @@ const RIG_FLOOR: f64 = 0.005;
 /// or a rig error beyond the floor), each keeps its own, and a note says so.
 fn pool_azimuths(measured: &mut [Measured], notes: &mut Vec<String>) {
     let theta = |m: &Measured| m.dir[2].clamp(-1.0, 1.0).acos();
-    let mut order: Vec<usize> = (0..measured.len()).collect();
-    order.sort_by(|&a, &b| theta(&measured[a]).total_cmp(&theta(&measured[b])));
-    let mut rings: Vec<Vec<usize>> = Vec::new();
-    for i in order {
-        match rings.last_mut() {
-            Some(r) if theta(&measured[i]) - theta(&measured[r[0]]) < SAME_ELEVATION => r.push(i),
-            _ => rings.push(vec![i]),
-        }
-    }
+    let thetas: Vec<f64> = measured.iter().map(theta).collect();
+    let rings = ascending_runs(&thetas, SAME_ELEVATION);
     let mut pooled = Vec::new();
     for ring in rings.iter().filter(|r| r.len() >= 2) {
         let mut channels = String::new();
@@ -301,14 +294,14 @@ fn pool_azimuths(measured: &mut [Measured], notes: &mut Vec<String>) {
             } else {
                 notes.push(format!(
                     "entrance function: channel {c} at {:.1} deg: the azimuths' f differ beyond their errors (chi2 {chi2:.1} over {dof} degrees of freedom), each kept",
-                    theta(&measured[ring[0]]).to_degrees()
+                    thetas[ring[0]].to_degrees()
                 ));
             }
         }
         if !channels.is_empty() {
             pooled.push(format!(
                 "{:.1} deg ({} directions, {channels})",
-                theta(&measured[ring[0]]).to_degrees(),
+                thetas[ring[0]].to_degrees(),
                 ring.len()
             ));
         }

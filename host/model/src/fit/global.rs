@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::FitOptions;
 use super::bins::DistanceBins;
-use super::stripes::{SPECULAR_VIEW_COS, core_mm, cos_to_mirror, dir_key};
+use super::stripes::{SPECULAR_VIEW_COS, ascending_runs, core_mm, cos_to_mirror, dir_key};
 use crate::ModelError;
 use crate::fresnel::normal_transmittance;
 use crate::profile::{ChannelFit, Profile, ProfileFit, fit_profile};
@@ -163,21 +163,15 @@ fn elevation_weights(cos: &[f64], per_radiance: &dyn Fn(&[f64]) -> Vec<f64>) -> 
 }
 
 /// The views' elevations, ascending: (mean direction cosine, the views
-/// within 0.02 of it).
+/// within 0.02 of the lowest).
 fn elevations(cos: &[f64]) -> Vec<(f64, Vec<usize>)> {
-    let mut order: Vec<usize> = (0..cos.len()).collect();
-    order.sort_by(|&a, &b| cos[a].total_cmp(&cos[b]));
-    let mut groups: Vec<(f64, Vec<usize>)> = Vec::new();
-    for i in order {
-        match groups.last_mut() {
-            Some((c, members)) if cos[i] - *c <= 0.02 => {
-                members.push(i);
-                *c = members.iter().map(|&j| cos[j]).sum::<f64>() / members.len() as f64;
-            }
-            _ => groups.push((cos[i], vec![i])),
-        }
-    }
-    groups
+    ascending_runs(cos, 0.02)
+        .into_iter()
+        .map(|members| {
+            let mean = members.iter().map(|&j| cos[j]).sum::<f64>() / members.len() as f64;
+            (mean, members)
+        })
+        .collect()
 }
 
 /// A note when the elevations' mean R differ by more than 10 %: the

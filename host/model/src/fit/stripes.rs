@@ -14,6 +14,22 @@ pub(super) const NEAR_VERTICAL_COS: f64 = 0.996_194_698_091_745_5;
 /// apart or more.
 pub(super) const SAME_LIGHT_DIR: f64 = 0.07;
 
+/// Indices of `values` in ascending order of value, in runs whose members
+/// lie within `within` of the run's first: the views or lights at one
+/// elevation.
+pub(super) fn ascending_runs(values: &[f64], within: f64) -> Vec<Vec<usize>> {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+    let mut runs: Vec<Vec<usize>> = Vec::new();
+    for i in order {
+        match runs.last_mut() {
+            Some(run) if values[i] - values[run[0]] <= within => run.push(i),
+            _ => runs.push(vec![i]),
+        }
+    }
+    runs
+}
+
 /// Directions are grouped when closer than this (radians).
 pub(super) const SAME_DIR: f64 = 1e-3;
 

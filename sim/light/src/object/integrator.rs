@@ -313,7 +313,7 @@ impl<'a> Ctx<'a> {
         if !(sf.eta.is_finite() && sf.eta >= 1.0) {
             return Err(ObjectError::Sample(format!("eta {} must be >= 1", sf.eta)));
         }
-        let bsdf = Dielectric::new(sf.eta as f32, sf.roughness as f32);
+        let bsdf = sf.dielectric();
         if let Some(cells) = &vol.cells {
             check_lights(&scene.lights, &bsdf, cells)?;
         }
@@ -328,8 +328,7 @@ impl<'a> Ctx<'a> {
             vol,
             tables,
             smooth: bsdf.mf.effectively_smooth(),
-            top_albedo: (sf.conserve_energy && !bsdf.mf.effectively_smooth())
-                .then(|| SingleScatteringAlbedo::new(&bsdf)),
+            top_albedo: sf.kept_albedo(),
             bsdf,
             eps: diag * 2e-5,
             fd_step: 1e-4,
