@@ -63,7 +63,8 @@ fn main() {
     );
     // Two sets of ten pairs, azimuths off the capture's steps, elevations
     // between its arcs: (light theta, phi, view theta, phi) of pair k.
-    let sets: [(&str, fn(f32) -> [f32; 4]); 2] = [
+    type PairOf = fn(f32) -> [f32; 4];
+    let sets: [(&str, PairOf); 2] = [
         ("A", |k| {
             [
                 12.0 + 6.5 * k,

@@ -69,6 +69,27 @@ pub fn direction(theta: f32, phi: f32) -> [f32; 3] {
     [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
 }
 
+/// The coordinates a source of w x h texels offers: from the first texel
+/// centre to the last, so nothing wraps.
+#[derive(Clone, Copy, Debug)]
+struct SourceBox {
+    lo: Vec2,
+    hi: Vec2,
+}
+
+impl SourceBox {
+    fn new(w: usize, h: usize) -> SourceBox {
+        SourceBox {
+            lo: Vec2::splat(0.5),
+            hi: Vec2::new(w as f32 - 0.5, h as f32 - 0.5),
+        }
+    }
+
+    fn contains(&self, c: Vec2) -> bool {
+        c.cmpge(self.lo).all() && c.cmple(self.hi).all()
+    }
+}
+
 /// Per-texel feature vectors of a source texture.
 #[derive(Clone, Debug)]
 pub struct Features {
@@ -460,9 +481,8 @@ impl SurfaceTexture {
         let grid = PointGrid::new(&pos, 2.0 * spacing);
         let (w, h) = (f.width, f.height);
         let similar = similar_texels(f, s.similar, s.seed);
-        let lo = Vec2::splat(0.5);
-        let hi = Vec2::new(w as f32 - 0.5, h as f32 - 0.5);
-        let inside = |c: Vec2| c.cmpge(lo).all() && c.cmple(hi).all();
+        let source = SourceBox::new(w, h);
+        let (lo, hi) = (source.lo, source.hi);
         let mut rng = Pcg64Mcg::seed_from_u64(s.seed);
         let random = |rng: &mut Pcg64Mcg| {
             Vec2::new(rng.random_range(lo.x..=hi.x), rng.random_range(lo.y..=hi.y))
@@ -522,7 +542,7 @@ impl SurfaceTexture {
                         candidates.push(Vec2::new((m % w) as f32, (m / w) as f32) + frac - d);
                     }
                 }
-                candidates.retain(|c| inside(*c));
+                candidates.retain(|c| source.contains(*c));
                 candidates.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
                 candidates.dedup_by(|a, b| a.distance_squared(*b) < 0.0625);
                 // The placed neighbours' features, then each candidate's cost.
@@ -568,6 +588,10 @@ impl SurfaceTexture {
         tex
     }
 
+    fn source_box(&self) -> SourceBox {
+        SourceBox::new(self.src_width, self.src_height)
+    }
+
     /// One pass over the points (in `order`) that moves the cuts between
     /// patches to where they show least, one point at a time: each point
     /// takes, among its own coordinate and the continuations of its
@@ -580,9 +604,7 @@ impl SurfaceTexture {
     /// from j's (`seam_energy`'s cut and interior terms, on the feature
     /// vectors); a pair that continues one patch costs nothing.
     fn place_seams(&mut self, f: &Features, order: &[usize]) {
-        let (w, h) = (self.src_width as f32, self.src_height as f32);
-        let (lo, hi) = (Vec2::splat(0.5), Vec2::new(w - 0.5, h - 0.5));
-        let inside = |c: Vec2| c.cmpge(lo).all() && c.cmple(hi).all();
+        let source = self.source_box();
         let dim = f.dim;
         let r = 1.5 * self.spacing;
         // per neighbour: the offsets o_ij (in i's frame) and o_ji (in j's),
@@ -623,7 +645,7 @@ impl SurfaceTexture {
             candidates.extend(
                 nb.iter()
                     .map(|&(o_ij, _, cj)| cj - o_ij)
-                    .filter(|c| inside(*c)),
+                    .filter(|c| source.contains(*c)),
             );
             let mut cost = |c: Vec2| -> f32 {
                 f.bilinear(c, &mut a);
@@ -666,8 +688,7 @@ impl SurfaceTexture {
     /// weighted by a tent; coordinates within half a texel are merged.
     pub fn lookup(&self, p: Vec3, n: Vec3) -> TexLookup {
         let (w, h) = (self.src_width as f32, self.src_height as f32);
-        let lo = Vec2::splat(0.5);
-        let hi = Vec2::new(w - 0.5, h - 0.5);
+        let source = self.source_box();
         let mut out = TexLookup::default();
         // Unnormalised coordinate sums per group.
         let mut sums = [Vec2::ZERO; 4];
@@ -686,7 +707,7 @@ impl SurfaceTexture {
                         p,
                         self.texel_mm,
                     ))
-                .clamp(lo, hi);
+                .clamp(source.lo, source.hi);
                 match (0..out.len).find(|&k| (sums[k] / out.weight[k]).distance_squared(c) < 0.25) {
                     Some(k) => {
                         sums[k] += c * wgt;
@@ -742,7 +763,7 @@ impl SurfaceTexture {
     /// are scaled by their spread over the points.
     pub fn seam_energy<M: Material>(&self, material: &M, wi: [f32; 3], wo: [f32; 3]) -> SeamEnergy {
         let (w, h) = (self.src_width as f32, self.src_height as f32);
-        let (lo, hi) = (Vec2::splat(0.5), Vec2::new(w - 0.5, h - 0.5));
+        let source = self.source_box();
         let look = |c: Vec2| -> [f32; 6] {
             let uv = [c.x / w, c.y / h];
             let (l, e) = (material.lrf(uv, wi, wo), material.exiting(uv, wo));
@@ -781,9 +802,7 @@ impl SurfaceTexture {
                         self.texel_mm,
                     );
                     let own = self.coord[i] + o;
-                    if own.distance(self.coord[j]) <= 0.5
-                        || !(own.cmpge(lo).all() && own.cmple(hi).all())
-                    {
+                    if own.distance(self.coord[j]) <= 0.5 || !source.contains(own) {
                         return;
                     }
                     acc.0 += energy(&at[i], &at[j]);
