@@ -61,14 +61,8 @@ fn textured() -> MaterialModel {
     MaterialModel {
         dipole: dipole(),
         entrance: EntranceFunction::fresnel(1.3, 19),
-        exiting: ExitingFunction {
-            views,
-            maps: fv_maps,
-        },
-        lrf: LocalReflectance {
-            samples,
-            maps: lrf_maps,
-        },
+        exiting: ExitingFunction::new(views, fv_maps),
+        lrf: LocalReflectance::new(samples, lrf_maps),
         texel_mm: 0.5,
         width: w as u32,
         height: h as u32,

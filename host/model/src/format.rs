@@ -324,14 +324,8 @@ impl MaterialModel {
         let model = MaterialModel {
             dipole,
             entrance,
-            exiting: ExitingFunction {
-                views: m.exiting.views,
-                maps: fv_maps,
-            },
-            lrf: LocalReflectance {
-                samples: m.lrf.samples,
-                maps: lrf_maps,
-            },
+            exiting: ExitingFunction::new(m.exiting.views, fv_maps),
+            lrf: LocalReflectance::new(m.lrf.samples, lrf_maps),
             texel_mm: m.texture.texel_mm,
             width: m.texture.width,
             height: m.texture.height,
@@ -484,12 +478,12 @@ mod tests {
                 .map(|p| [s + p as f32 * 0.01, s, -s * 0.1])
                 .collect(),
         };
-        m.exiting = ExitingFunction {
-            views: vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]],
-            maps: vec![tex(1.0), tex(0.9)],
-        };
-        m.lrf = LocalReflectance {
-            samples: (0..5)
+        m.exiting = ExitingFunction::new(
+            vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]],
+            vec![tex(1.0), tex(0.9)],
+        );
+        m.lrf = LocalReflectance::new(
+            (0..5)
                 .map(|k| LrfSample {
                     light: [0.0, 0.6, 0.8],
                     view: [(k as f32 * 0.3).sin() * 0.6, 0.0, 0.8],
@@ -502,8 +496,8 @@ mod tests {
                     }
                 })
                 .collect(),
-            maps: (0..5).map(|k| tex(0.1 * k as f32)).collect(),
-        };
+            (0..5).map(|k| tex(0.1 * k as f32)).collect(),
+        );
         m
     }
 

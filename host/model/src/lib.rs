@@ -29,7 +29,9 @@ pub use subsurface::{DipoleParams, ProfileModel};
 pub mod model;
 pub mod profile;
 
-pub use model::{EntranceFunction, ExitingFunction, LocalReflectance, MaterialModel, Texture};
+pub use model::{
+    DirWeights, EntranceFunction, ExitingFunction, LocalReflectance, MaterialModel, Texture,
+};
 pub use profile::{Profile, ProfileFit, fit_profile};
 pub mod compress;
 pub mod denoise;

@@ -9,7 +9,9 @@
 //! L_o(x, w_o) = ∫ R(x, w_i, w_o) E_n(w_i) dw_i  +  f_v(x, w_o) / π · Σ_i R_d(|x - x_i|) f(w_i) E(x_i) A_i,
 //! where E_n is the irradiance normal to the light and E(x_i) the irradiance on the surface.
 
+use std::collections::HashMap;
 use std::f32::consts::{FRAC_PI_2, PI};
+use std::sync::OnceLock;
 
 use serde::{Deserialize, Serialize};
 
@@ -85,14 +87,28 @@ impl EntranceFunction {
 pub struct ExitingFunction {
     pub views: Vec<[f32; 3]>,
     pub maps: Vec<Texture>,
+    index: PairIndexCache,
 }
 
 impl ExitingFunction {
+    pub fn new(views: Vec<[f32; 3]>, maps: Vec<Texture>) -> Self {
+        ExitingFunction {
+            views,
+            maps,
+            index: PairIndexCache::default(),
+        }
+    }
     pub fn eval(&self, uv: [f32; 2], wo: [f32; 3]) -> [f32; 3] {
-        let dirs: Vec<([f32; 3], [f32; 3])> = self.views.iter().map(|&v| (v, [0.0; 3])).collect();
-        blend(&nearest(&dirs, wo, [0.0; 3], 3), |i| {
-            self.maps[i].sample(uv)
-        })
+        self.eval_weighted(uv, &self.weights(wo))
+    }
+    /// The sampled views that stand for `wo`, and their weights: the same
+    /// for every texel, so a lookup at several coordinates finds them once.
+    pub fn weights(&self, wo: [f32; 3]) -> DirWeights {
+        let pairs = || self.views.iter().map(|&v| (v, [0.0; 3]));
+        self.index.nearest(self.views.len(), pairs, wo, [0.0; 3], 3)
+    }
+    pub fn eval_weighted(&self, uv: [f32; 2], weights: &DirWeights) -> [f32; 3] {
+        weights.blend(|i| self.maps[i].sample(uv))
     }
 }
 
@@ -110,16 +126,29 @@ pub struct LrfSample {
 pub struct LocalReflectance {
     pub samples: Vec<LrfSample>,
     pub maps: Vec<Texture>,
+    index: PairIndexCache,
 }
 
 impl LocalReflectance {
-    pub fn eval(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
-        if self.samples.is_empty() {
-            return [0.0; 3];
+    pub fn new(samples: Vec<LrfSample>, maps: Vec<Texture>) -> Self {
+        LocalReflectance {
+            samples,
+            maps,
+            index: PairIndexCache::default(),
         }
-        let dirs: Vec<([f32; 3], [f32; 3])> =
-            self.samples.iter().map(|s| (s.light, s.view)).collect();
-        blend(&nearest(&dirs, wi, wo, 4), |i| self.maps[i].sample(uv))
+    }
+    pub fn eval(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
+        self.eval_weighted(uv, &self.weights(wi, wo))
+    }
+    /// The sampled (light, view) pairs that stand for (`wi`, `wo`), and
+    /// their weights: the same for every texel. None without samples.
+    pub fn weights(&self, wi: [f32; 3], wo: [f32; 3]) -> DirWeights {
+        let pairs = || self.samples.iter().map(|s| (s.light, s.view));
+        self.index.nearest(self.samples.len(), pairs, wi, wo, 4)
+    }
+    /// R at `uv` with weights from [`LocalReflectance::weights`]; 0 without samples.
+    pub fn eval_weighted(&self, uv: [f32; 2], weights: &DirWeights) -> [f32; 3] {
+        weights.blend(|i| self.maps[i].sample(uv))
     }
 }
 
@@ -181,10 +210,10 @@ impl MaterialModel {
         MaterialModel {
             dipole,
             entrance: EntranceFunction::fresnel(dipole.eta, 19),
-            exiting: ExitingFunction {
-                views: vec![[0.0, 0.0, 1.0]],
-                maps: vec![Texture::filled(1, 1, [1.0; 3])],
-            },
+            exiting: ExitingFunction::new(
+                vec![[0.0, 0.0, 1.0]],
+                vec![Texture::filled(1, 1, [1.0; 3])],
+            ),
             lrf: LocalReflectance::default(),
             texel_mm: 1.0,
             width: 1,
@@ -226,36 +255,147 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f32 {
         .acos()
 }
 
-/// The `k` samples nearest to (a, b) in summed angle, with inverse-square
-/// distance weights (an exact hit takes all the weight).
-fn nearest(dirs: &[([f32; 3], [f32; 3])], a: [f32; 3], b: [f32; 3], k: usize) -> Vec<(usize, f32)> {
-    let mut d: Vec<(usize, f32)> = dirs
-        .iter()
-        .enumerate()
-        .map(|(i, &(x, y))| {
-            let db = if norm(y) == 0.0 { 0.0 } else { angle(y, b) };
-            (i, angle(x, a) + db)
-        })
-        .collect();
-    d.sort_by(|x, y| x.1.total_cmp(&y.1));
-    d.truncate(k);
-    if d[0].1 < 1e-5 {
-        return vec![(d[0].0, 1.0)];
-    }
-    let w: Vec<(usize, f32)> = d.iter().map(|&(i, x)| (i, 1.0 / (x * x))).collect();
-    let sum: f32 = w.iter().map(|x| x.1).sum();
-    w.into_iter().map(|(i, x)| (i, x / sum)).collect()
+/// At most this many sampled directions blend into one lookup.
+const MAX_BLEND: usize = 4;
+
+/// Sampled directions and their blending weights for one lookup direction
+/// (summing to 1; empty when nothing is sampled).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DirWeights {
+    len: usize,
+    index: [usize; MAX_BLEND],
+    weight: [f32; MAX_BLEND],
 }
 
-fn blend(weights: &[(usize, f32)], f: impl Fn(usize) -> [f32; 3]) -> [f32; 3] {
-    let mut out = [0.0; 3];
-    for &(i, w) in weights {
-        let v = f(i);
-        for c in 0..3 {
-            out[c] += w * v[c];
+impl DirWeights {
+    fn blend(&self, f: impl Fn(usize) -> [f32; 3]) -> [f32; 3] {
+        let mut out = [0.0; 3];
+        for (&i, &w) in self.index.iter().zip(&self.weight).take(self.len) {
+            let v = f(i);
+            for c in 0..3 {
+                out[c] += w * v[c];
+            }
+        }
+        out
+    }
+}
+
+/// A set of direction pairs with each distinct direction listed once: a
+/// capture's LRF holds each lamp direction at several views and each view
+/// under many lamps (784 pairs of 112 lights and 28 views at the default
+/// scale), so the angles to a lookup are taken once per distinct direction.
+#[derive(Debug, Default)]
+struct PairIndex {
+    firsts: Vec<[f32; 3]>,
+    seconds: Vec<[f32; 3]>,
+    /// Per pair, its first and second direction's place in the lists.
+    pairs: Vec<(u32, u32)>,
+}
+
+impl PairIndex {
+    fn new(pairs: impl Iterator<Item = ([f32; 3], [f32; 3])>) -> Self {
+        fn place(list: &mut Vec<[f32; 3]>, seen: &mut HashMap<[u32; 3], u32>, d: [f32; 3]) -> u32 {
+            *seen.entry(d.map(f32::to_bits)).or_insert_with(|| {
+                list.push(d);
+                (list.len() - 1) as u32
+            })
+        }
+        let (mut seen_a, mut seen_b) = (HashMap::new(), HashMap::new());
+        let mut index = PairIndex::default();
+        for (a, b) in pairs {
+            let pa = place(&mut index.firsts, &mut seen_a, a);
+            let pb = place(&mut index.seconds, &mut seen_b, b);
+            index.pairs.push((pa, pb));
+        }
+        index
+    }
+
+    /// The `k` (at most [`MAX_BLEND`]) pairs nearest to (a, b) in summed
+    /// angle, ties to the earlier pair, with inverse-square distance
+    /// weights (an exact hit takes all the weight).
+    fn nearest(&self, a: [f32; 3], b: [f32; 3], k: usize) -> DirWeights {
+        let k = k.min(MAX_BLEND).min(self.pairs.len());
+        let mut out = DirWeights::default();
+        if k == 0 {
+            return out;
+        }
+        let to_a: Vec<f32> = self.firsts.iter().map(|&x| angle(x, a)).collect();
+        let to_b: Vec<f32> = self.seconds.iter().map(|&y| angle(y, b)).collect();
+        let mut dist = [0.0f32; MAX_BLEND];
+        for (i, &(pa, pb)) in self.pairs.iter().enumerate() {
+            let d = to_a[pa as usize] + to_b[pb as usize];
+            if out.len == k && d.total_cmp(&dist[k - 1]).is_ge() {
+                continue;
+            }
+            // After every kept pair at most as far: ties stay in pair order.
+            let at = dist[..out.len]
+                .iter()
+                .take_while(|x| x.total_cmp(&d).is_le())
+                .count();
+            let end = (out.len + 1).min(k);
+            dist.copy_within(at..end - 1, at + 1);
+            out.index.copy_within(at..end - 1, at + 1);
+            dist[at] = d;
+            out.index[at] = i;
+            out.len = end;
+        }
+        if dist[0] < 1e-5 {
+            out.len = 1;
+            out.weight[0] = 1.0;
+            return out;
+        }
+        for j in 0..out.len {
+            out.weight[j] = 1.0 / (dist[j] * dist[j]);
+        }
+        let sum: f32 = out.weight[..out.len].iter().sum();
+        for w in &mut out.weight[..out.len] {
+            *w /= sum;
+        }
+        out
+    }
+}
+
+/// A [`PairIndex`] built at the first lookup. The function's pairs are not
+/// to change after that; if their number does, the lookup indexes them
+/// afresh each time.
+#[derive(Default)]
+struct PairIndexCache(OnceLock<PairIndex>);
+
+impl PairIndexCache {
+    fn nearest<I: Iterator<Item = ([f32; 3], [f32; 3])>>(
+        &self,
+        len: usize,
+        pairs: impl Fn() -> I,
+        a: [f32; 3],
+        b: [f32; 3],
+        k: usize,
+    ) -> DirWeights {
+        let index = self.0.get_or_init(|| PairIndex::new(pairs()));
+        if index.pairs.len() == len {
+            index.nearest(a, b, k)
+        } else {
+            PairIndex::new(pairs()).nearest(a, b, k)
         }
     }
-    out
+}
+
+impl Clone for PairIndexCache {
+    fn clone(&self) -> Self {
+        PairIndexCache::default()
+    }
+}
+
+/// A cache: equal whatever it holds.
+impl PartialEq for PairIndexCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for PairIndexCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PairIndexCache")
+    }
 }
 
 #[cfg(test)]
@@ -301,6 +441,74 @@ mod tests {
         assert!((t.sample([1.0, 0.5])[0] - 0.5).abs() < 1e-6);
     }
 
+    /// The k nearest by a full sort of every pair's summed angle, the
+    /// plain way: what [`PairIndex::nearest`] must give.
+    fn nearest_by_sorting(
+        dirs: &[([f32; 3], [f32; 3])],
+        a: [f32; 3],
+        b: [f32; 3],
+        k: usize,
+    ) -> Vec<(usize, f32)> {
+        let mut d: Vec<(usize, f32)> = dirs
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, y))| (i, angle(x, a) + angle(y, b)))
+            .collect();
+        d.sort_by(|x, y| x.1.total_cmp(&y.1));
+        d.truncate(k);
+        if d[0].1 < 1e-5 {
+            return vec![(d[0].0, 1.0)];
+        }
+        let w: Vec<(usize, f32)> = d.iter().map(|&(i, x)| (i, 1.0 / (x * x))).collect();
+        let sum: f32 = w.iter().map(|x| x.1).sum();
+        w.into_iter().map(|(i, x)| (i, x / sum)).collect()
+    }
+
+    #[test]
+    fn indexed_nearest_pairs_equal_a_full_sort() {
+        // Lights and views on a coarse grid, repeated as a capture repeats
+        // them, with ties (the same pair twice) and the query on a sample.
+        let dir = |t: f32, p: f32| [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()];
+        let lights: Vec<[f32; 3]> = (0..12)
+            .map(|k| dir(0.1 * k as f32, 0.7 * k as f32))
+            .collect();
+        let views: Vec<[f32; 3]> = (0..5)
+            .map(|k| dir(0.15 * k as f32, 1.3 * k as f32))
+            .collect();
+        let mut pairs: Vec<([f32; 3], [f32; 3])> = lights
+            .iter()
+            .flat_map(|&l| views.iter().map(move |&v| (l, v)))
+            .collect();
+        pairs.push(pairs[7]);
+        let index = PairIndex::new(pairs.iter().copied());
+        assert_eq!((index.firsts.len(), index.seconds.len()), (12, 5));
+        let mut queries: Vec<([f32; 3], [f32; 3])> = (0..200)
+            .map(|k| {
+                (
+                    dir(0.007 * k as f32, 0.37 * k as f32),
+                    dir(0.004 * k as f32, 1.1 * k as f32),
+                )
+            })
+            .collect();
+        queries.push(pairs[7]);
+        for (a, b) in queries {
+            for k in [1, 3, 4] {
+                let got = index.nearest(a, b, k);
+                let want = nearest_by_sorting(&pairs, a, b, k);
+                let got: Vec<(usize, f32)> = (0..got.len)
+                    .map(|j| (got.index[j], got.weight[j]))
+                    .collect();
+                assert_eq!(got, want, "query {a:?} {b:?}, k {k}");
+            }
+        }
+        // The comparison can fail: ties broken the other way (the repeated
+        // pair 7 taken for its later copy) differ from the full sort.
+        let (a, b) = pairs[7];
+        let mut later = index.nearest(a, b, 1);
+        later.index[0] = pairs.len() - 1;
+        assert_ne!(later.index[0], nearest_by_sorting(&pairs, a, b, 1)[0].0);
+    }
+
     #[test]
     fn exiting_picks_the_exact_view_and_blends_between() {
         let views = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]];
@@ -308,7 +516,7 @@ mod tests {
             Texture::filled(1, 1, [1.0; 3]),
             Texture::filled(1, 1, [3.0; 3]),
         ];
-        let e = ExitingFunction { views, maps };
+        let e = ExitingFunction::new(views, maps);
         assert_eq!(e.eval([0.0, 0.0], [0.0, 0.0, 1.0])[0], 1.0);
         assert_eq!(e.eval([0.0, 0.0], [1.0, 0.0, 0.0])[0], 3.0);
         let mid = e.eval([0.0, 0.0], [1.0, 0.0, 1.0])[0];

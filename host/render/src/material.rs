@@ -10,7 +10,10 @@
 //! Directions are in the local shading frame: z = surface normal (outside),
 //! x = the texture's +u direction on the surface.
 
+use glam::Vec3;
 use qhm_model::DipoleParams;
+
+use crate::texture_synthesis::TexLookup;
 
 /// The material interface of the renderer.
 pub trait Material: Sync {
@@ -24,6 +27,15 @@ pub trait Material: Sync {
     /// Local reflectance function R(x, w_i, w_o) (radiance per unit
     /// irradiance on a surface perpendicular to w_i; may be negative).
     fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3];
+    /// f_v blended over a lookup's texture coordinates (output-space
+    /// filtering across the synthesis's cuts).
+    fn exiting_blend(&self, tex: &TexLookup, wo: [f32; 3]) -> Vec3 {
+        tex.blend(|uv| self.exiting(uv, wo))
+    }
+    /// R blended over a lookup's texture coordinates.
+    fn lrf_blend(&self, tex: &TexLookup, wi: [f32; 3], wo: [f32; 3]) -> Vec3 {
+        tex.blend(|uv| self.lrf(uv, wi, wo))
+    }
     /// Texture size in texels (width, height).
     fn texture_size(&self) -> (u32, u32);
     /// Texel pitch on the sample, mm.

@@ -4,9 +4,11 @@
 //! with the smooth boundary's exit shape, no LRF: the same as
 //! `MaterialModel::homogeneous`), with the named dipole presets.
 
+use glam::Vec3;
 use qhm_model::DipoleParams;
 
 use crate::material::Material;
+use crate::texture_synthesis::TexLookup;
 
 /// A homogeneous material: plain dipole, smooth Fresnel entrance, no texture.
 #[derive(Clone, Debug)]
@@ -54,6 +56,15 @@ impl Material for qhm_model::MaterialModel {
     }
     fn lrf(&self, uv: [f32; 2], wi: [f32; 3], wo: [f32; 3]) -> [f32; 3] {
         qhm_model::MaterialModel::lrf(self, uv, wi, wo)
+    }
+    /// The sampled directions are found once for all the coordinates.
+    fn exiting_blend(&self, tex: &TexLookup, wo: [f32; 3]) -> Vec3 {
+        let w = self.exiting.weights(wo);
+        tex.blend(|uv| self.exiting.eval_weighted(uv, &w))
+    }
+    fn lrf_blend(&self, tex: &TexLookup, wi: [f32; 3], wo: [f32; 3]) -> Vec3 {
+        let w = self.lrf.weights(wi, wo);
+        tex.blend(|uv| self.lrf.eval_weighted(uv, &w))
     }
     fn texture_size(&self) -> (u32, u32) {
         qhm_model::MaterialModel::texture_size(self)

@@ -265,7 +265,7 @@ fn radiance<M: Material>(
             {
                 return Vec3::ZERO;
             }
-            tex.blend(|uv| material.lrf(uv, wi_l.to_array(), wo_l.to_array())) * e
+            material.lrf_blend(&tex, wi_l.to_array(), wo_l.to_array()) * e
         };
         for light in &scene.lights {
             let s = light.sample(p);
@@ -329,7 +329,7 @@ fn radiance<M: Material>(
             );
             Vec3::splat((1.0 / per_radiance) as f32)
         } else {
-            let fv = tex.blend(|uv| material.exiting(uv, wo_l.to_array()));
+            let fv = material.exiting_blend(&tex, wo_l.to_array());
             match &prep.exit_shape {
                 Some(shape) => fv * shape.eval(wo_l.z) / PI,
                 None => fv / PI,

@@ -46,9 +46,9 @@ pub fn write_model(dir: &Path) -> PathBuf {
             model: qhm_model::ProfileModel::Dipole,
         },
         entrance: EntranceFunction::fresnel(1.3, 19),
-        exiting: ExitingFunction { views, maps: fv },
-        lrf: LocalReflectance {
-            samples: vec![
+        exiting: ExitingFunction::new(views, fv),
+        lrf: LocalReflectance::new(
+            vec![
                 LrfSample {
                     light: [0.0, 0.0, 1.0],
                     view: [0.0, 0.0, 1.0],
@@ -58,8 +58,8 @@ pub fn write_model(dir: &Path) -> PathBuf {
                     view: [0.0, 0.0, 1.0],
                 },
             ],
-            maps: lrf,
-        },
+            lrf,
+        ),
         texel_mm: 0.5,
         width: w as u32,
         height: h as u32,

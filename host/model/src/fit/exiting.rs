@@ -72,9 +72,9 @@ pub(super) fn fit_exiting(
             .map(|p| t.get(i0 + p % ww, j0 + p / ww))
             .collect(),
     };
-    let exiting = ExitingFunction {
-        views: views.values().map(|&v| f32v(v)).collect(),
-        maps: fv_raw
+    let exiting = ExitingFunction::new(
+        views.values().map(|&v| f32v(v)).collect(),
+        fv_raw
             .iter()
             .map(|m| {
                 crop(&Texture {
@@ -84,7 +84,7 @@ pub(super) fn fit_exiting(
                 })
             })
             .collect(),
-    };
+    );
     Ok((exiting, window))
 }
 

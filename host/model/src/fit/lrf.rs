@@ -112,7 +112,7 @@ pub(super) fn fit_lrf(
                 }
             }
         });
-    Ok((LocalReflectance { samples, maps }, report))
+    Ok((LocalReflectance::new(samples, maps), report))
 }
 
 /// The global term of a lamp image per unit irradiance, at each texel for
