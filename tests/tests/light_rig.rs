@@ -109,9 +109,11 @@ fn two_height_target_shows_the_laser_plane_offset() {
 #[test]
 fn a_ci_scale_pass_two_sweep_is_cheap() {
     // pass 2 at the ci scale: one vertical stripe per channel and turntable
-    // position, all seven cameras, then a 3-exposure bracket per frame
+    // position, all seven cameras, then a 3-exposure bracket per frame, on
+    // the sample the ci demo captures (the cellular presets' walks cost
+    // 30-100 times as much per event: docs/sim.md)
     let world = World::new(
-        SceneDesc::preset("bread").unwrap(),
+        SceneDesc::preset("two-material").unwrap(),
         RigTruth::perturbed(1),
         SimQuality::ci(),
     )
