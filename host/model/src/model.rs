@@ -141,7 +141,7 @@ impl LocalReflectance {
         self.eval_weighted(uv, &self.weights(wi, wo))
     }
     /// The sampled (light, view) pairs that stand for (`wi`, `wo`), and
-    /// their weights: the same for every texel. None without samples.
+    /// their weights: the same for every texel; empty without samples.
     pub fn weights(&self, wi: [f32; 3], wo: [f32; 3]) -> DirWeights {
         let pairs = || self.samples.iter().map(|s| (s.light, s.view));
         self.index.nearest(self.samples.len(), pairs, wi, wo, 4)
