@@ -306,7 +306,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
     // while the captures leave cores idle; the fit then finds them made.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     crate::idle::in_idle_time(threads, move || {
-        qhm_model::radiative_transfer::HalfSpace::shared(eta);
+        qhm_model::radiative_transfer::HalfSpace::shared_for_line_profiles(eta);
     })?;
     let mut stages = Stages {
         quiet: opts.quiet,

@@ -21,7 +21,7 @@ fn main() {
     let p = DipoleParams::from_coefficients([2.55, 3.21, 3.77], [0.0011, 0.0024, 0.014], 1.3);
     let (a, st) = (p.alpha_prime[0], p.sigma_t_prime[0]);
     let t = Instant::now();
-    let _ = HalfSpace::shared(1.3);
+    let _ = HalfSpace::shared_for_line_profiles(1.3);
     println!(
         "transport kernel tables for eta 1.3 (once per process): {:.2} s",
         t.elapsed().as_secs_f64()

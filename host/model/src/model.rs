@@ -344,8 +344,8 @@ impl PairIndex {
             out.weight[0] = 1.0;
             return out;
         }
-        for j in 0..out.len {
-            out.weight[j] = 1.0 / (dist[j] * dist[j]);
+        for (w, d) in out.weight.iter_mut().zip(dist).take(out.len) {
+            *w = 1.0 / (d * d);
         }
         let sum: f32 = out.weight[..out.len].iter().sum();
         for w in &mut out.weight[..out.len] {

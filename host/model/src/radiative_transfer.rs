@@ -499,8 +499,9 @@ fn solve_dense_any(a: &mut [f64], mut b: Vec<f64>, n: usize) -> Vec<f64> {
 
 /// Kernel tables for one eta, shared by every albedo: the primitives at
 /// each spatial frequency and the single-scattering line profile of unit
-/// albedo. Building them takes about a second; [`HalfSpace::shared`] keeps
-/// one per eta for the process.
+/// albedo. Building each takes about a second; [`HalfSpace::shared`] keeps
+/// one per eta for the process. The line profile's table is built when a
+/// line profile is first asked for: a renderer needs only radial profiles.
 pub struct HalfSpace {
     pub eta: f64,
     angles: Angles,
@@ -514,7 +515,7 @@ pub struct HalfSpace {
     /// ln of single scattering of unit albedo at x = SS_NEAR e^{i·SS_STEP}
     /// (logarithmic at the line and exponential away from it, so
     /// tabulated in ln x and interpolated in ln g).
-    single: Vec<f64>,
+    single: OnceLock<Vec<f64>>,
 }
 
 /// Highest spatial frequency of the multiple-scattering transform, 1/mfp.
@@ -542,11 +543,6 @@ impl HalfSpace {
             .par_iter()
             .map(|&k| Primitives::new(k, &angles, &grid))
             .collect();
-        let n = ((SS_REACH / SS_NEAR).ln() / SS_STEP).ceil() as usize + 2;
-        let single = (0..n)
-            .into_par_iter()
-            .map(|i| single_line(eta, SS_NEAR * (i as f64 * SS_STEP).exp()).ln())
-            .collect();
         HalfSpace {
             eta,
             angles,
@@ -554,8 +550,32 @@ impl HalfSpace {
             prims,
             recent: Mutex::new(Vec::new()),
             radial: Mutex::new(Vec::new()),
-            single,
+            single: OnceLock::new(),
         }
+    }
+
+    /// The tables [`HalfSpace::shared`] gives, with the line profile's
+    /// single-scattering table built too (for a fit, ahead of time).
+    pub fn shared_for_line_profiles(eta: f64) -> Arc<HalfSpace> {
+        let hs = HalfSpace::shared(eta);
+        hs.single_table();
+        hs
+    }
+
+    fn single_table(&self) -> &[f64] {
+        if let Some(table) = self.single.get() {
+            return table;
+        }
+        // Built outside any lock: a rayon worker waiting in this par_iter may
+        // run another line profile's job, which must not block on the table.
+        // Callers that race compute the same table; the first one is kept.
+        let n = ((SS_REACH / SS_NEAR).ln() / SS_STEP).ceil() as usize + 2;
+        let table = (0..n)
+            .into_par_iter()
+            .map(|i| single_line(self.eta, SS_NEAR * (i as f64 * SS_STEP).exp()).ln())
+            .collect();
+        let _ = self.single.set(table);
+        self.single.get().expect("set above")
     }
 
     /// The tables for `eta`, built once per process.
@@ -681,13 +701,14 @@ impl HalfSpace {
     /// Unit-albedo single scattering at x, from the table (its first entry
     /// below SS_NEAR).
     fn single_at(&self, x: f64) -> f64 {
+        let single = self.single_table();
         let u = (x.abs().max(SS_NEAR) / SS_NEAR).ln() / SS_STEP;
         let i = u.floor() as usize;
-        if i + 1 >= self.single.len() {
+        if i + 1 >= single.len() {
             return 0.0;
         }
         let f = u - i as f64;
-        (self.single[i] * (1.0 - f) + self.single[i + 1] * f).exp()
+        (single[i] * (1.0 - f) + single[i + 1] * f).exp()
     }
 }
 
