@@ -422,6 +422,7 @@ fn similar_texels(f: &Features, k: usize, seed: u64) -> Vec<Vec<u32>> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x51);
         (0..4096).map(|_| rng.random_range(0..n)).collect()
     };
+    let packed = PackedDescriptors::new(&pool, &desc);
     (0..n)
         .into_par_iter()
         .map(|i| {
@@ -432,15 +433,9 @@ fn similar_texels(f: &Features, k: usize, seed: u64) -> Vec<Vec<u32>> {
             };
             let mut best: Vec<(f32, u32)> = pool
                 .iter()
-                .filter(|&&j| apart(j))
-                .map(|&j| {
-                    let e = desc[i]
-                        .iter()
-                        .zip(&desc[j])
-                        .map(|(a, b)| (a - b) * (a - b))
-                        .sum();
-                    (e, j as u32)
-                })
+                .zip(packed.distances(&desc[i]))
+                .filter(|&(&j, _)| apart(j))
+                .map(|(&j, e)| (e, j as u32))
                 .collect();
             let k = k.min(best.len());
             if k > 0 {
@@ -450,6 +445,59 @@ fn similar_texels(f: &Features, k: usize, seed: u64) -> Vec<Vec<u32>> {
             best.into_iter().map(|(_, j)| j).collect()
         })
         .collect()
+}
+
+/// Descriptors of the search pool, [`LANES`] at a time, interleaved: the
+/// squared distances from one descriptor to eight of them run side by side
+/// in the lanes of a vector, each summed in the descriptor's own order
+/// (the same sums as one at a time, at several times the speed of one
+/// dependent chain of additions).
+struct PackedDescriptors {
+    len: usize,
+    count: usize,
+    /// Block b, element t, lane l at `(b * len + t) * LANES + l`.
+    data: Vec<f32>,
+}
+
+const LANES: usize = 8;
+
+impl PackedDescriptors {
+    fn new(pool: &[usize], desc: &[Vec<f32>]) -> Self {
+        let len = desc.first().map_or(0, Vec::len);
+        let mut data = vec![0.0; pool.len().div_ceil(LANES) * len * LANES];
+        for (p, &j) in pool.iter().enumerate() {
+            let (b, l) = (p / LANES, p % LANES);
+            for (t, &v) in desc[j].iter().enumerate() {
+                data[(b * len + t) * LANES + l] = v;
+            }
+        }
+        PackedDescriptors {
+            len,
+            count: pool.len(),
+            data,
+        }
+    }
+
+    /// The squared distance from `d` to each pool descriptor, in pool order.
+    fn distances(&self, d: &[f32]) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.count + LANES);
+        if self.len == 0 {
+            out.resize(self.count, 0.0);
+            return out;
+        }
+        for block in self.data.chunks_exact(self.len * LANES) {
+            let mut acc = [0.0f32; LANES];
+            for (&x, col) in d.iter().zip(block.chunks_exact(LANES)) {
+                for l in 0..LANES {
+                    let e = x - col[l];
+                    acc[l] += e * e;
+                }
+            }
+            out.extend_from_slice(&acc);
+        }
+        out.truncate(self.count);
+        out
+    }
 }
 
 impl SurfaceTexture {
