@@ -562,7 +562,8 @@ impl SurfaceTexture {
         let mut neighbours: Vec<(Vec2, Vec2)> = Vec::new();
         let mut candidates: Vec<Vec2> = Vec::new();
         let mut targets: Vec<f32> = Vec::new();
-        let mut probe = vec![0.0; f.dim];
+        let mut probes = vec![0.0; LANES * f.dim];
+        let mut costs: Vec<f32> = Vec::new();
         // The first pass sees the points placed before; the later ones
         // every neighbour, and may move a point to a better match.
         for _ in 0..1 + s.refine {
@@ -598,19 +599,33 @@ impl SurfaceTexture {
                 for (k, &(_, cq)) in neighbours.iter().enumerate() {
                     f.bilinear(cq, &mut targets[k * f.dim..(k + 1) * f.dim]);
                 }
-                let mut cost = |c: Vec2| -> f32 {
-                    neighbours
-                        .iter()
-                        .enumerate()
-                        .map(|(k, &(d, _))| {
-                            f.bilinear(c + d, &mut probe);
-                            dist(&probe, &targets[k * f.dim..(k + 1) * f.dim])
-                        })
-                        .sum()
-                };
-                let best = candidates
+                // Each candidate's cost, the sum over the neighbours of its
+                // feature distance, for LANES candidates side by side.
+                costs.clear();
+                for chunk in candidates.chunks(LANES) {
+                    let mut cost = [0.0f32; LANES];
+                    for (k, &(d, _)) in neighbours.iter().enumerate() {
+                        for (l, &c) in chunk.iter().enumerate() {
+                            f.bilinear(c + d, &mut probes[l * f.dim..(l + 1) * f.dim]);
+                        }
+                        let target = &targets[k * f.dim..(k + 1) * f.dim];
+                        let mut to_target = [0.0f32; LANES];
+                        for (t, &y) in target.iter().enumerate() {
+                            for (l, sum) in to_target.iter_mut().enumerate() {
+                                let e = probes[l * f.dim + t] - y;
+                                *sum += e * e;
+                            }
+                        }
+                        for (c, d) in cost.iter_mut().zip(to_target) {
+                            *c += d;
+                        }
+                    }
+                    costs.extend_from_slice(&cost[..chunk.len()]);
+                }
+                let best = costs
                     .iter()
-                    .map(|&c| (cost(c), c))
+                    .zip(&candidates)
+                    .map(|(&cost, &c)| (cost, c))
                     .min_by(|a, b| a.0.total_cmp(&b.0));
                 coord[i] = match best {
                     Some((_, c)) => c,
