@@ -578,17 +578,25 @@ impl HalfSpace {
         self.single.get().expect("set above")
     }
 
-    /// The tables for `eta`, built once per process.
+    /// The tables for `eta`, built once per process (built outside the
+    /// lock, as [`remembered`] does: a rayon worker waiting in the build's
+    /// par_iter may run a job that asks for them too; callers that race
+    /// build the same tables and the first kept is shared).
     pub fn shared(eta: f64) -> Arc<HalfSpace> {
         static CACHE: OnceLock<Mutex<Vec<Arc<HalfSpace>>>> = OnceLock::new();
         let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
-        let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(hs) = cache.iter().find(|h| h.eta == eta) {
-            return hs.clone();
+        let lock = || cache.lock().unwrap_or_else(|e| e.into_inner());
+        let find = |c: &[Arc<HalfSpace>]| c.iter().find(|h| h.eta == eta).cloned();
+        if let Some(hs) = find(&lock()) {
+            return hs;
         }
-        let hs = Arc::new(HalfSpace::new(eta));
-        cache.push(hs.clone());
-        hs
+        let built = Arc::new(HalfSpace::new(eta));
+        let mut cache = lock();
+        if let Some(hs) = find(&cache) {
+            return hs;
+        }
+        cache.push(built.clone());
+        built
     }
 
     /// Single scattering's total exitance (exact): ½ a' ∫ (1 - F) μ/(1 + μ) dμ.
