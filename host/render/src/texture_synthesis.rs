@@ -486,18 +486,25 @@ impl PackedDescriptors {
             return out;
         }
         for block in self.data.chunks_exact(self.len * LANES) {
-            let mut acc = [0.0f32; LANES];
-            for (&x, col) in d.iter().zip(block.chunks_exact(LANES)) {
-                for l in 0..LANES {
-                    let e = x - col[l];
-                    acc[l] += e * e;
-                }
-            }
-            out.extend_from_slice(&acc);
+            out.extend_from_slice(&lane_distances(d, block));
         }
         out.truncate(self.count);
         out
     }
+}
+
+/// The squared distance from `d` to each of the [`LANES`] vectors
+/// interleaved in `block` (element t of lane l at `t * LANES + l`), each
+/// summed in element order.
+fn lane_distances(d: &[f32], block: &[f32]) -> [f32; LANES] {
+    let mut acc = [0.0f32; LANES];
+    for (&x, col) in d.iter().zip(block.chunks_exact(LANES)) {
+        for l in 0..LANES {
+            let e = x - col[l];
+            acc[l] += e * e;
+        }
+    }
+    acc
 }
 
 impl SurfaceTexture {
@@ -562,6 +569,8 @@ impl SurfaceTexture {
         let mut neighbours: Vec<(Vec2, Vec2)> = Vec::new();
         let mut candidates: Vec<Vec2> = Vec::new();
         let mut targets: Vec<f32> = Vec::new();
+        let mut probe = vec![0.0; f.dim];
+        // The candidates' probes, interleaved as lane_distances reads them.
         let mut probes = vec![0.0; LANES * f.dim];
         let mut costs: Vec<f32> = Vec::new();
         // The first pass sees the points placed before; the later ones
@@ -606,17 +615,13 @@ impl SurfaceTexture {
                     let mut cost = [0.0f32; LANES];
                     for (k, &(d, _)) in neighbours.iter().enumerate() {
                         for (l, &c) in chunk.iter().enumerate() {
-                            f.bilinear(c + d, &mut probes[l * f.dim..(l + 1) * f.dim]);
-                        }
-                        let target = &targets[k * f.dim..(k + 1) * f.dim];
-                        let mut to_target = [0.0f32; LANES];
-                        for (t, &y) in target.iter().enumerate() {
-                            for (l, sum) in to_target.iter_mut().enumerate() {
-                                let e = probes[l * f.dim + t] - y;
-                                *sum += e * e;
+                            f.bilinear(c + d, &mut probe);
+                            for (t, &v) in probe.iter().enumerate() {
+                                probes[t * LANES + l] = v;
                             }
                         }
-                        for (c, d) in cost.iter_mut().zip(to_target) {
+                        let target = &targets[k * f.dim..(k + 1) * f.dim];
+                        for (c, d) in cost.iter_mut().zip(lane_distances(target, &probes)) {
                             *c += d;
                         }
                     }
