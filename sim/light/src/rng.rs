@@ -56,18 +56,11 @@ impl Rng {
         (hi | lo) as f64 * (1.0 / 9_007_199_254_740_992.0)
     }
 
-    /// Standard normal (Box-Muller's cosine half; [`Normals`] uses both).
+    /// Standard normal (Box-Muller's cosine half).
     pub fn normal(&mut self) -> f64 {
-        let (r, angle) = self.box_muller();
-        r * angle.cos()
-    }
-
-    /// Box-Muller's radius and angle from two uniforms.
-    #[inline]
-    fn box_muller(&mut self) -> (f64, f64) {
         let u1 = 1.0 - self.uniform_f64();
         let u2 = self.uniform_f64();
-        ((-2.0 * u1.ln()).sqrt(), std::f64::consts::TAU * u2)
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
     }
 
     /// Poisson with mean `lambda`: exact (Knuth) for small means, normal
@@ -92,25 +85,21 @@ impl Rng {
     }
 }
 
-/// Standard normals two at a time: the cosine and the sine half of one
-/// Box-Muller pair. A logarithm, a square root and a sine-cosine per two
-/// normals is half the cost of [`Rng::normal`]'s one per normal (the
-/// sensor's read noise needs one per pixel and channel).
-#[derive(Default)]
-pub struct Normals {
-    spare: Option<f64>,
-}
+/// So rand_distr's samplers (the sensor's ziggurat normals) draw from a
+/// seeded PCG stream.
+impl rand_core::RngCore for Rng {
+    #[inline(always)]
+    fn next_u32(&mut self) -> u32 {
+        Rng::next_u32(self)
+    }
 
-impl Normals {
-    #[inline]
-    pub fn next(&mut self, rng: &mut Rng) -> f64 {
-        if let Some(z) = self.spare.take() {
-            return z;
-        }
-        let (r, angle) = rng.box_muller();
-        let (s, c) = angle.sin_cos();
-        self.spare = Some(r * s);
-        r * c
+    #[inline(always)]
+    fn next_u64(&mut self) -> u64 {
+        ((Rng::next_u32(self) as u64) << 32) | Rng::next_u32(self) as u64
+    }
+
+    fn fill_bytes(&mut self, dst: &mut [u8]) {
+        rand_core::impls::fill_bytes_via_next(self, dst)
     }
 }
 
@@ -249,23 +238,6 @@ const fn ln_table() -> [(f64, f64); 1 << LN_BITS] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn paired_normals_are_standard_and_the_halves_of_a_pair_uncorrelated() {
-        let mut rng = Rng::new(3, 0);
-        let mut normals = Normals::default();
-        let n = 200_000;
-        let z: Vec<f64> = (0..n).map(|_| normals.next(&mut rng)).collect();
-        let mean = z.iter().sum::<f64>() / n as f64;
-        let var = z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64;
-        let tail = z.iter().filter(|v| v.abs() > 2.0).count() as f64 / n as f64;
-        // the two halves of each pair
-        let pair = z.chunks(2).map(|p| p[0] * p[1]).sum::<f64>() / (n / 2) as f64;
-        assert!(mean.abs() < 0.01, "mean {mean}");
-        assert!((var - 1.0).abs() < 0.01, "variance {var}");
-        assert!((tail - 0.0455).abs() < 0.002, "P(|z| > 2) = {tail}");
-        assert!(pair.abs() < 0.01, "pair correlation {pair}");
-    }
 
     #[test]
     fn uniform_mean_and_range() {

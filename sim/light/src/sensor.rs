@@ -3,7 +3,8 @@
 //! Model, per pixel and channel c (documented in docs/sim.md so calibration
 //! can be checked against it):
 //!   electrons e = L * colour_gain[c] * SENSITIVITY * exposure_s   (L in W sr^-1 m^-2)
-//!   e' = Poisson(e) + N(0, READ_NOISE_E)                            (shot and read noise)
+//!   e' = Poisson(e) + N(0, READ_NOISE_E)                            (shot and read noise;
+//!        above POISSON_EXACT_UP_TO e-, one normal of variance e + READ_NOISE_E^2)
 //!   m  = clamp(e' * gain / FULL_WELL_E, 0, 1)                       (gain: linear, 1 = unity)
 //!   Z  = round(255 * response(m))                                   (8-bit, saturates at 255)
 //! `response` is a monotone cubic with response(0) = 0, response(1) = 1
@@ -13,7 +14,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::RadianceImage;
-use crate::rng::{Normals, Rng, mix64};
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::rng::{Rng, mix64};
 
 /// Electrons per (W sr^-1 m^-2 * s) at colour gain 1: a 1 W sr^-1 m^-2
 /// radiance fills the well in 10 ms at unity gain.
@@ -22,6 +25,21 @@ pub const SENSITIVITY: f64 = 2.0e6;
 pub const FULL_WELL_E: f64 = 20_000.0;
 /// Read noise, electrons rms.
 pub const READ_NOISE_E: f64 = 12.0;
+/// Mean electron counts up to this are drawn from the exact Poisson law;
+/// above it shot noise is normal, and with the read noise one normal of
+/// variance e + READ_NOISE_E^2 (its error is far below the read noise).
+pub const POISSON_EXACT_UP_TO: f64 = 30.0;
+
+/// Electrons read out for a mean of `e`: shot noise plus read noise.
+#[inline]
+fn electrons(rng: &mut Rng, e: f64) -> f64 {
+    let z: f64 = StandardNormal.sample(rng);
+    if e > POISSON_EXACT_UP_TO {
+        e + (e + READ_NOISE_E * READ_NOISE_E).sqrt() * z
+    } else {
+        rng.poisson(e) + READ_NOISE_E * z
+    }
+}
 
 /// Camera response I(m) = c1 m + c2 m^2 + c3 m^3, with c1 + c2 + c3 = 1.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -118,7 +136,6 @@ impl Sensor {
             .map(|(row, out)| {
                 let mut rng =
                     Rng::new(mix64(noise_seed ^ ((self.camera as u64) << 56)), row as u64);
-                let mut read_noise = Normals::default();
                 let mut sat = 0u64;
                 for (x, px) in out.chunks_exact_mut(3).enumerate() {
                     let l = radiance.data[row * w + x];
@@ -126,9 +143,11 @@ impl Sensor {
                     for c in 0..3 {
                         let e =
                             (l[c] as f64).max(0.0) * self.colour_gain[c] * SENSITIVITY * exposure_s;
-                        let e = rng.poisson(e) + READ_NOISE_E * read_noise.next(&mut rng);
-                        let m = (e * gain / FULL_WELL_E).clamp(0.0, 1.0);
-                        let z = (255.0 * self.response.eval(m)).round().clamp(0.0, 255.0) as u8;
+                        let m = (electrons(&mut rng, e) * gain / FULL_WELL_E).clamp(0.0, 1.0);
+                        // Rounds half up, as round() does here (the value is
+                        // never negative), without a libm call per channel.
+                        let z = (255.0 * self.response.eval(m)).clamp(0.0, 255.0) + 0.5;
+                        let z = z as u8;
                         any |= z == 255;
                         px[c] = z;
                     }
@@ -201,6 +220,43 @@ mod tests {
             / f.rgb.len() as f64;
         assert!(var.sqrt() > 0.8 && var.sqrt() < 2.5, "{}", var.sqrt());
         assert_eq!(f.meta.saturated_pixels, 0);
+    }
+
+    /// Shot and read noise add up to the model's variance e + 144 on both
+    /// sides of the exact-Poisson bound, and the mean level stays e.
+    #[test]
+    fn noise_variance_is_shot_plus_read_noise() {
+        let linear = Sensor {
+            response: Response {
+                coeffs: [1.0, 0.0, 0.0],
+            },
+            ..sensor()
+        };
+        // gain g: one code is 20000 / (255 g) electrons
+        for (e, gain) in [(25.0, 40.0), (400.0, 10.0), (5000.0, 1.0)] {
+            let l = e / (SENSITIVITY * 0.01);
+            let mut codes = Vec::new();
+            for seed in 0..40 {
+                let f = linear.expose(&flat(l as f32), 0.01, gain, seed);
+                codes.extend(f.rgb.iter().map(|&z| z as f64));
+            }
+            let per_code = FULL_WELL_E / (255.0 * gain);
+            let n = codes.len() as f64;
+            let mean = codes.iter().sum::<f64>() / n;
+            let var = codes.iter().map(|z| (z - mean).powi(2)).sum::<f64>() / n;
+            // 8-bit quantisation adds 1/12 code^2
+            let var_e = (var - 1.0 / 12.0) * per_code * per_code;
+            let expect = e + READ_NOISE_E * READ_NOISE_E;
+            assert!(
+                (mean * per_code - e).abs() < 0.02 * e + 0.5 * per_code,
+                "e {e}: mean {}",
+                mean * per_code
+            );
+            assert!(
+                (var_e / expect - 1.0).abs() < 0.06,
+                "e {e}: variance {var_e} vs {expect}"
+            );
+        }
     }
 
     #[test]
