@@ -47,8 +47,9 @@ pub const MAX_IDLE_WALL: Duration = Duration::from_millis(1);
 /// so the clock resumes where it stood instead of jumping past the
 /// heartbeat timeout before it sees them.
 pub const MAX_CATCH_UP_WALL: Duration = Duration::from_millis(50);
-/// Longest virtual time one catch-up may cover, whatever the speed: a fifth
-/// of the MCU's 250 ms heartbeat timeout. At speed 8 a 50 ms stall of the
+/// Longest virtual time one catch-up of a free-running rig may cover,
+/// whatever the speed: a fifth of the MCU's 250 ms heartbeat timeout (in
+/// lockstep the host's lead bounds it instead). At speed 8 a 50 ms stall of the
 /// whole process (host and emulated MCU alike) would otherwise be 400 ms of
 /// rig time, and the MCU would fault on a host that only paused with it.
 pub const MAX_CATCH_UP_VIRTUAL_US: u64 = 50_000;
@@ -139,13 +140,14 @@ impl RigHandle {
         let at = port.now_us();
         let wall = self.wall_us();
         let mut target = wall;
-        let max_step = ((MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64)
-            .min(MAX_CATCH_UP_VIRTUAL_US);
-        target = target.min(at.saturating_add(max_step));
+        let mut max_step = (MAX_CATCH_UP_WALL.as_secs_f64() * 1e6 * self.speed()) as u64;
         if let Some(lead) = self.shared.host_lead_us {
             let wrote = self.shared.host_wrote_us.load(Ordering::SeqCst);
             target = target.min(wrote.saturating_add(lead));
+        } else {
+            max_step = max_step.min(MAX_CATCH_UP_VIRTUAL_US);
         }
+        target = target.min(at.saturating_add(max_step));
         let target = target.max(at);
         if wall > target {
             // Held back: the clock resumes from here, not from the wall.
@@ -354,6 +356,23 @@ mod tests {
         let every = Some(Duration::from_millis(2));
         let t = run_for(&config(50.0, Some(100_000)), wall, every).await;
         assert!(t > 2_000_000, "clock at {t} µs after 300 ms of a live host");
+    }
+
+    /// One catch-up after 5 ms of wall time at 1000x (5 s of rig time): a
+    /// free-running rig moves at most MAX_CATCH_UP_VIRTUAL_US; in lockstep
+    /// the lead alone bounds it, so a fast rig is not held to 50 ms per look.
+    #[test]
+    fn in_lockstep_one_catch_up_covers_the_whole_lead() {
+        let catch_up = |lead: Option<u64>| {
+            let cfg = config(1000.0, lead);
+            let port = SimPort::new(cfg.rig.clone(), cfg.link).unwrap();
+            let start = port.now_us();
+            let rig = RigHandle::new(port, cfg.speed, cfg.host_lead_us);
+            std::thread::sleep(Duration::from_millis(5));
+            rig.now_us() - start
+        };
+        assert_eq!(catch_up(None), MAX_CATCH_UP_VIRTUAL_US);
+        assert_eq!(catch_up(Some(200_000)), 200_000);
     }
 
     #[test]

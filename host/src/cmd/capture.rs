@@ -68,7 +68,7 @@ pub struct RunArgs {
     /// Seed of the simulated world (rig errors, Monte Carlo, sensor noise).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Simulated rig: at most this many rig seconds per wall second (default 50;
+    /// Simulated rig: at most this many rig seconds per wall second (default 200;
     /// the rig also waits for a late host, so its clock never outruns the link).
     #[arg(long)]
     pub sim_speed: Option<f64>,

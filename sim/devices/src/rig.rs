@@ -156,15 +156,19 @@ pub fn calibration_quality(scale: Scale) -> SimQuality {
 
 /// How much faster than real time the built-in rig's clock runs, at most.
 /// The rig moves, dwells and times out in rig time as a real one would;
-/// only the wall time shrinks. The bound is the emulator's own pace: it
-/// polls the Controller at every motor step and input scan.
-pub const SIM_SPEED: f64 = 50.0;
+/// only the wall time shrinks. At 200x a default capture's sweeps (a
+/// 3.75 fps camera dwells 273 ms per trigger) take 40 ms of wall time each;
+/// the host's 1 ms timer ticks are then 200 ms of rig time, which
+/// [`HOST_LEAD_US`] covers.
+pub const SIM_SPEED: f64 = 200.0;
 
-/// The built-in rig's lockstep lead, virtual µs: 40 % of the MCU's 250 ms
-/// heartbeat timeout, so a heartbeat the host sent on time (every 50 ms of
-/// rig time) always reaches the MCU before it would fault, however the
-/// host's process is scheduled.
-pub const HOST_LEAD_US: u64 = 100_000;
+/// The built-in rig's lockstep lead, virtual µs: 80 % of the MCU's 250 ms
+/// heartbeat timeout. Any host frame resets that timeout, and a heartbeat
+/// frame takes about 1 ms of rig time on the line, so a host the rig waits
+/// for can never lose it, however the host's process is scheduled; and one
+/// host timer tick (1 ms of wall time, 200 ms of rig time at [`SIM_SPEED`])
+/// fits in the lead, so a host on time does not hold the rig back.
+pub const HOST_LEAD_US: u64 = 200_000;
 
 /// Lamp photons of a calibration frame, at least (on a calibration target
 /// the three channels share them, `sim_light::walk::Accum::rgb`): the patch
