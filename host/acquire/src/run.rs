@@ -6,8 +6,9 @@
 //! elevation; moves both axes at once and waits for them to stop and settle;
 //! sets the light; configures and arms the cameras with the step's frame
 //! tags; fires (a galvo sweep whose dwells pulse the trigger lines, or one
-//! trigger for a lamp image); and writes each trigger's frames, in camera
-//! order, durably into the directory before journaling them.
+//! trigger for a lamp image); and writes the step's frames, in trigger and
+//! camera order, durably into the directory before journaling them (in
+//! batches: one sync of the files, their directories and the journal each).
 //!
 //! Triggers fire only while nothing moves (the MCU sweep waits for the galvo
 //! to settle; axis moves are awaited plus their settling time). The axes are
@@ -475,32 +476,93 @@ async fn run_step(
         Light::Lamp { .. } => link.trigger(mask, pulse_us).await?,
     }
     // Frames, trigger by trigger, cameras in index order (the journal order).
-    for (k, &tag) in tags.iter().enumerate() {
-        for &c in &step.cameras {
-            let cam = &mut cameras[by_index[&c]];
-            let frame = tokio::select! {
-                f = cam.next_frame(opts.frame_timeout) => f?,
-                e = wait_reset(&mut events) => return Err(e.into()),
-            };
-            if frame.meta.tag != tag {
-                return Err(RunError::WrongFrame {
-                    camera: c,
-                    got: frame.meta.tag,
-                    expected: tag,
-                });
+    let mut batch = FrameBatch::default();
+    let received = async {
+        for (k, &tag) in tags.iter().enumerate() {
+            for &c in &step.cameras {
+                let cam = &mut cameras[by_index[&c]];
+                let frame = receive_frame(cam, &mut events, opts, c, tag).await?;
+                let key = (step.index, k as u32, c);
+                if dir.has_frame(key) {
+                    report.frames_kept += 1;
+                    continue;
+                }
+                batch.push(key, step.frame_path(k, c), frame.to_png()?);
+                if batch.bytes >= FRAME_BATCH_BYTES {
+                    batch.write(dir, step, report, progress)?;
+                }
             }
-            let key = (step.index, k as u32, c);
-            if dir.has_frame(key) {
-                report.frames_kept += 1;
-                continue;
-            }
-            let png = frame.to_png()?;
-            dir.write_frame(key, &step.frame_path(k, c), &png)?;
-            report.frames_written += 1;
-            progress.frame(step, dir.frame_count());
         }
+        Ok(())
     }
-    Ok(())
+    .await;
+    // What came before an error is kept too.
+    batch.write(dir, step, report, progress)?;
+    received
+}
+
+/// Frames of a step held for one durable write: at most this many bytes of
+/// PNG (a paper-scale step's frames would not fit in memory).
+const FRAME_BATCH_BYTES: usize = 32 << 20;
+
+#[derive(Default)]
+struct FrameBatch {
+    frames: Vec<(crate::dir::FrameKey, String, Vec<u8>)>,
+    bytes: usize,
+}
+
+impl FrameBatch {
+    fn push(&mut self, key: crate::dir::FrameKey, path: String, png: Vec<u8>) {
+        self.bytes += png.len();
+        self.frames.push((key, path, png));
+    }
+
+    /// Writes the held frames durably, journals them and reports them.
+    fn write(
+        &mut self,
+        dir: &mut CaptureDir,
+        step: &Step,
+        report: &mut RunReport,
+        progress: &mut dyn Progress,
+    ) -> Result<(), RunError> {
+        if self.frames.is_empty() {
+            return Ok(());
+        }
+        let frames: Vec<_> = (self.frames.iter())
+            .map(|(key, path, png)| (*key, path.as_str(), png.as_slice()))
+            .collect();
+        dir.write_frames(&frames)?;
+        let n = frames.len();
+        report.frames_written += n;
+        for done in dir.frame_count() + 1 - n..=dir.frame_count() {
+            progress.frame(step, done);
+        }
+        self.frames.clear();
+        self.bytes = 0;
+        Ok(())
+    }
+}
+
+/// The next frame of camera `c`, which must be tagged `tag`.
+async fn receive_frame(
+    cam: &mut Box<dyn Camera>,
+    events: &mut qhm_link::EventStream,
+    opts: &RunOptions,
+    c: u8,
+    tag: u64,
+) -> Result<crate::camera::Frame, RunError> {
+    let frame = tokio::select! {
+        f = cam.next_frame(opts.frame_timeout) => f?,
+        e = wait_reset(events) => return Err(e.into()),
+    };
+    if frame.meta.tag != tag {
+        return Err(RunError::WrongFrame {
+            camera: c,
+            got: frame.meta.tag,
+            expected: tag,
+        });
+    }
+    Ok(frame)
 }
 
 /// Resolves only when the link reports a reset or a disconnect.
