@@ -10,12 +10,11 @@
 //! `response` is a monotone cubic with response(0) = 0, response(1) = 1
 //! (Mitsunaga-Nayar form), slightly different for every camera.
 
+use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::RadianceImage;
-use rand_distr::{Distribution, StandardNormal};
-
 use crate::rng::{Rng, mix64};
 
 /// Electrons per (W sr^-1 m^-2 * s) at colour gain 1: a 1 W sr^-1 m^-2
