@@ -432,40 +432,44 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             std::fs::create_dir_all(&renders_dir)?;
             let settings = render_settings(opts.scale);
             let b = Bar::new("render", 6, opts.quiet);
-            // A scene of `object` under one of its lightings.
-            let lit = |object: &str, lighting: usize| -> Result<Scene> {
-                let mut scene = Scene::builtin(object)?;
-                let (_, lights, env) = lightings(&scene)[lighting].clone();
-                scene.lights = lights;
-                scene.env_visible = env.is_some();
-                scene.env = env;
-                Ok(scene)
+            // `object`'s scenes, one per lighting.
+            let scenes = |object: &str| -> Result<Vec<(&'static str, Scene)>> {
+                let base = Scene::builtin(object)?;
+                (lightings(&base).into_iter())
+                    .map(|(name, lights, env)| {
+                        let mut scene = Scene::builtin(object)?;
+                        scene.lights = lights;
+                        scene.env_visible = env.is_some();
+                        scene.env = env;
+                        Ok((name, scene))
+                    })
+                    .collect()
             };
             // One pass 1 per object (surface samples, R_d table, texture),
             // both objects side by side: the texture synthesis grows one
             // point at a time, on one core. Each lighting then redoes only
             // its irradiance.
             let t = Instant::now();
-            let first = |object: &str| -> Result<Prepared> {
+            let first = |object: &str| -> Result<(Vec<(&'static str, Scene)>, Prepared)> {
+                let scenes = scenes(object)?;
                 let stats = &mut RenderStats::default();
-                Ok(prepare(&lit(object, 0)?, &model, &settings, stats)?)
+                let prepared = prepare(&scenes[0].1, &model, &settings, stats)?;
+                Ok((scenes, prepared))
             };
             let (teapot, bread) = rayon::join(|| first("teapot"), || first("bread"));
             b.println(&format!(
                 "   teapot and bread, surface samples and textures: {:.1} s",
                 t.elapsed().as_secs_f64()
             ));
-            for (object, prepared) in [("teapot", teapot), ("bread", bread)] {
-                let mut prep = prepared?;
-                for (k, (light_name, ..)) in lightings(&Scene::builtin(object)?).iter().enumerate()
-                {
+            for (object, first) in [("teapot", teapot), ("bread", bread)] {
+                let (scenes, mut prep) = first?;
+                for (k, (light_name, scene)) in scenes.iter().enumerate() {
                     let t = Instant::now();
-                    let scene = lit(object, k)?;
                     if k > 0 {
-                        prep.relight(&scene, &model, &settings, &mut RenderStats::default())?;
+                        prep.relight(scene, &model, &settings, &mut RenderStats::default())?;
                     }
                     let (img, _) = render_prepared(
-                        &scene,
+                        scene,
                         &model,
                         &settings,
                         &mut prep,

@@ -762,29 +762,7 @@ impl CaptureDir {
     /// one sync of each file, of each directory and of the journal for all
     /// of them, instead of three per frame.
     pub fn write_frames(&mut self, frames: &[(FrameKey, &str, &[u8])]) -> Result<(), DirError> {
-        let mut written = Vec::with_capacity(frames.len());
-        for &(_, rel, data) in frames {
-            let path = self.root.join(rel);
-            let parent = path.parent().unwrap_or(&self.root).to_path_buf();
-            fs::create_dir_all(&parent).map_err(io_err(&parent))?;
-            let tmp = path.with_extension("tmp");
-            let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
-            f.write_all(data).map_err(io_err(&tmp))?;
-            written.push((f, tmp, path, parent));
-        }
-        for (f, tmp, ..) in &written {
-            f.sync_all().map_err(io_err(tmp))?;
-        }
-        let mut parents: Vec<&Path> = Vec::new();
-        for (_, tmp, path, parent) in &written {
-            fs::rename(tmp, path).map_err(io_err(path))?;
-            if !parents.contains(&parent.as_path()) {
-                parents.push(parent);
-            }
-        }
-        for parent in parents {
-            sync_dir(parent)?;
-        }
+        write_all_durably(&self.root, frames.iter().map(|&(_, rel, data)| (rel, data)))?;
         let mut lines = String::new();
         for &(key, rel_path, png) in frames {
             let sha = hex(&Sha256::digest(png));
@@ -1049,16 +1027,36 @@ fn lock(journal: &File, root: &Path) -> Result<(), DirError> {
 
 /// Write to a temporary name, fsync, rename, fsync the directory.
 fn write_durably(root: &Path, rel: &str, data: &[u8]) -> Result<(), DirError> {
-    let path = root.join(rel);
-    let parent = path.parent().unwrap_or(root).to_path_buf();
-    fs::create_dir_all(&parent).map_err(io_err(&parent))?;
-    let tmp = path.with_extension("tmp");
-    let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
-    f.write_all(data)
-        .and_then(|_| f.sync_all())
-        .map_err(io_err(&tmp))?;
-    fs::rename(&tmp, &path).map_err(io_err(&path))?;
-    sync_dir(&parent)
+    write_all_durably(root, [(rel, data)])
+}
+
+/// [`write_durably`] for several files at once: every file written first,
+/// then one fsync of each, the renames, and one fsync of each directory.
+fn write_all_durably<'a>(
+    root: &Path,
+    files: impl IntoIterator<Item = (&'a str, &'a [u8])>,
+) -> Result<(), DirError> {
+    let mut written = Vec::new();
+    for (rel, data) in files {
+        let path = root.join(rel);
+        let parent = path.parent().unwrap_or(root).to_path_buf();
+        fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+        let tmp = path.with_extension("tmp");
+        let mut f = File::create(&tmp).map_err(io_err(&tmp))?;
+        f.write_all(data).map_err(io_err(&tmp))?;
+        written.push((f, tmp, path, parent));
+    }
+    for (f, tmp, ..) in &written {
+        f.sync_all().map_err(io_err(tmp))?;
+    }
+    let mut parents: Vec<&Path> = Vec::new();
+    for (_, tmp, path, parent) in &written {
+        fs::rename(tmp, path).map_err(io_err(path))?;
+        if !parents.contains(&parent.as_path()) {
+            parents.push(parent);
+        }
+    }
+    parents.into_iter().try_for_each(sync_dir)
 }
 
 fn sync_dir(dir: &Path) -> Result<(), DirError> {
