@@ -468,14 +468,9 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                     if k > 0 {
                         prep.relight(scene, &model, &settings, &mut RenderStats::default())?;
                     }
-                    let (img, _) = render_prepared(
-                        scene,
-                        &model,
-                        &settings,
-                        &mut prep,
-                        &AtomicBool::new(false),
-                    )
-                    .context("render cancelled")?;
+                    let (img, _) =
+                        render_prepared(scene, &model, &settings, &prep, &AtomicBool::new(false))
+                            .context("render cancelled")?;
                     let stem = format!("{object}-{light_name}");
                     img.write_exr(&renders_dir.join(format!("{stem}.exr")))?;
                     img.write_png(&renders_dir.join(format!("{stem}.png")), None)?;
