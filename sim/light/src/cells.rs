@@ -27,6 +27,12 @@ use glam::Vec3;
 use crate::microfacet::{Dielectric, SingleScatteringAlbedo};
 use crate::rng::Rng;
 
+mod scan;
+
+#[cfg(target_arch = "x86_64")]
+use scan::Avx2;
+use scan::{Portable, Scan};
+
 /// Where a line meets a cell wall.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WallHit {
@@ -36,10 +42,10 @@ pub struct WallHit {
     pub normal: Vec3,
 }
 
-/// Spheres per [`Block`]: one SSE register per coordinate.
-const LANES: usize = 4;
+/// Spheres per [`Block`]: one AVX register per coordinate.
+const LANES: usize = 8;
 
-/// Up to four spheres of one grid cell in lanes (one cache line), so the
+/// Up to eight spheres of one grid cell in lanes (two cache lines), so the
 /// tests run without branches; unused lanes hold [`EMPTY`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C, align(64))]
@@ -54,54 +60,16 @@ struct Block {
 /// A sphere no line reaches and no point lies in (radius 0, far away).
 const EMPTY: [f32; 4] = [1e9, 1e9, 1e9, 0.0];
 
-/// A lane-wise value; written so that the compiler vectorises it.
-#[inline(always)]
-fn lanes(f: impl FnMut(usize) -> f32) -> [f32; LANES] {
-    std::array::from_fn(f)
-}
-
-/// Lane-wise `if m { a } else { b }`.
-#[inline(always)]
-fn select<T: Copy>(m: [bool; LANES], a: [T; LANES], b: [T; LANES]) -> [T; LANES] {
-    std::array::from_fn(|j| if m[j] { a[j] } else { b[j] })
-}
-
-/// max(x, 0) for numbers (no NaN handling, unlike `f32::max`).
-#[inline(always)]
-fn max0(x: f32) -> f32 {
-    if x > 0.0 { x } else { 0.0 }
-}
-
-/// The smallest lane, for numbers (no NaN handling, unlike `f32::min`).
-#[inline(always)]
-fn min4(v: [f32; LANES]) -> f32 {
-    let m = [
-        if v[0] < v[2] { v[0] } else { v[2] },
-        if v[1] < v[3] { v[1] } else { v[3] },
-    ];
-    if m[0] < m[1] { m[0] } else { m[1] }
-}
-
-/// Index of the largest lane (the first of equals), without branches.
-#[inline(always)]
-fn argmax(v: [f32; LANES]) -> usize {
-    let mut j = 0;
-    for i in 1..LANES {
-        j = if v[i] > v[j] { i } else { j };
-    }
-    j
-}
-
 /// Blocks of a grid cell's list whose pore-crossing intervals `Cells::cross`
-/// keeps (longer lists take one grid lookup per overlapping cell).
-const MAX_SWEEP: usize = 16;
+/// keeps on the stack (longer lists, rare, keep them on the heap).
+const MAX_SWEEP: usize = 8;
 
 /// Side of a grid cell in mean sphere radii, where the lists fit in
 /// LIST_BYTES: fewer cells per flight against more spheres per cell. The
-/// bench (M collisions per CPU s) measured 1.5 best: bread 4.58 at 1,
-/// 4.76 at 1.5, 4.65 at 2; rice-cake 2.09, 2.14, 2.07 (sponge is held by
+/// bench (k paths per CPU s, 1 thread) measured 2.5 best: rice-cake 25.0 at
+/// 1.5, 26.5 at 2.5, 25.9 at 3; bread 118, 123, 116 (the sponge is held by
 /// LIST_BYTES).
-const GRID_RADII: f32 = 1.5;
+const GRID_RADII: f32 = 2.5;
 
 /// Memory the grid's lists may take (see `Cells::build`): twice a core's
 /// 2 MB L2 measured best overall (`qhm sim bench`: sponge 4.1 M collisions
@@ -126,6 +94,96 @@ fn floor_f(x: f32) -> f32 {
         r - (r > x) as i32 as f32
     } else {
         floor_i(x) as f32
+    }
+}
+
+/// A line's walk through the grid cells (Amanatides-Woo) in unbounded cell
+/// coordinates of the tile frame, kept as the cell in the tile and the
+/// tile it is in; without branches on the signs of the direction, a coin
+/// toss per flight.
+struct GridWalk {
+    /// The grid cell in the tile, per axis.
+    cell: [i32; 3],
+    /// The tile, per axis (in periods from the starting point's tile).
+    tile: [i32; 3],
+    step: [i32; 3],
+    /// Distance along the line to the next grid plane, per axis.
+    t_next: [f32; 3],
+    t_delta: [f32; 3],
+}
+
+impl GridWalk {
+    /// From `q` (in the tile's frame) in grid cell `c` along the unit `d`.
+    #[inline(always)]
+    fn new(q: Vec3, c: [usize; 3], d: Vec3, g: f32) -> GridWalk {
+        let cell = c.map(|c| c as i32);
+        let (dv, qv) = ([d.x, d.y, d.z], [q.x, q.y, q.z]);
+        GridWalk {
+            cell,
+            tile: [0; 3],
+            step: std::array::from_fn(|a| (dv[a] > 0.0) as i32 - (dv[a] < 0.0) as i32),
+            t_next: std::array::from_fn(|a| {
+                let wall = (cell[a] + (dv[a] > 0.0) as i32) as f32 * g;
+                if dv[a] != 0.0 {
+                    (wall - qv[a]) / dv[a]
+                } else {
+                    f32::INFINITY
+                }
+            }),
+            t_delta: std::array::from_fn(|a| {
+                if dv[a] != 0.0 {
+                    g / dv[a].abs()
+                } else {
+                    f32::INFINITY
+                }
+            }),
+        }
+    }
+
+    /// Index of the current grid cell in the tile's lists.
+    #[inline(always)]
+    fn index(&self, ng: i32) -> usize {
+        let n = ng as usize;
+        (self.cell[2] as usize * n + self.cell[1] as usize) * n + self.cell[0] as usize
+    }
+
+    /// Offset of the current tile from the starting one.
+    #[inline(always)]
+    fn shift(&self, period: f32) -> Vec3 {
+        Vec3::new(
+            self.tile[0] as f32,
+            self.tile[1] as f32,
+            self.tile[2] as f32,
+        ) * period
+    }
+
+    /// The axis whose grid plane the line meets next, and the distance to it
+    /// (where the line leaves the current grid cell).
+    #[inline(always)]
+    fn exit(&self) -> (usize, f32) {
+        let t = &self.t_next;
+        let a = if t[0] <= t[1] && t[0] <= t[2] {
+            0
+        } else if t[1] <= t[2] {
+            1
+        } else {
+            2
+        };
+        (a, t[a])
+    }
+
+    /// Into the next grid cell across axis `a`'s plane.
+    #[inline(always)]
+    fn advance(&mut self, a: usize, ng: i32) {
+        self.cell[a] += self.step[a];
+        if self.cell[a] == ng {
+            self.cell[a] = 0;
+            self.tile[a] += 1;
+        } else if self.cell[a] < 0 {
+            self.cell[a] = ng - 1;
+            self.tile[a] -= 1;
+        }
+        self.t_next[a] += self.t_delta[a];
     }
 }
 
@@ -204,7 +262,7 @@ impl Cells {
             centres.push([c[0], c[1], c[2], r]);
         }
         let measured = filled as f64 / (m * m * m) as f64;
-        // grid: cells about 1.5 mean radii wide (GRID_RADII), at most 128
+        // grid: cells GRID_RADII mean radii wide, at most 128
         // per side, and coarser where the lists would outgrow LIST_BYTES:
         // the lookups of a walk land all over the tile, and a cache miss
         // costs more than the tests of a longer list
@@ -341,13 +399,11 @@ impl Cells {
     pub fn inside(&self, p: Vec3) -> bool {
         let (q, cell) = self.locate(p);
         self.list(cell).iter().any(|s| {
-            let (ox, oy, oz) = (
-                lanes(|j| q.x - s.x[j]),
-                lanes(|j| q.y - s.y[j]),
-                lanes(|j| q.z - s.z[j]),
-            );
-            let i: [bool; LANES] =
-                std::array::from_fn(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] < s.r2[j]);
+            // all lanes, then one test (no early exit: they vectorise)
+            let i: [bool; LANES] = std::array::from_fn(|j| {
+                let (ox, oy, oz) = (q.x - s.x[j], q.y - s.y[j], q.z - s.z[j]);
+                ox * ox + oy * oy + oz * oz < s.r2[j]
+            });
             i.iter().fold(false, |a, &b| a | b)
         })
     }
@@ -361,46 +417,22 @@ impl Cells {
             // SAFETY: the CPU has AVX2 (checked just above).
             return unsafe { self.first_entry_avx2(p, d, t_max) };
         }
-        self.first_entry_body(p, d, t_max)
+        self.first_entry_with::<Portable>(p, d, t_max)
     }
 
-    /// `first_entry` compiled for AVX2 (the same arithmetic, so the same
-    /// bits; about 10 % faster).
+    /// `first_entry` with the AVX2 inner loop (the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn first_entry_avx2(&self, p: Vec3, d: Vec3, t_max: f32) -> Option<WallHit> {
-        self.first_entry_body(p, d, t_max)
+        self.first_entry_with::<Avx2>(p, d, t_max)
     }
 
     #[inline(always)]
-    fn first_entry_body(&self, p: Vec3, d: Vec3, t_max: f32) -> Option<WallHit> {
+    fn first_entry_with<S: Scan>(&self, p: Vec3, d: Vec3, t_max: f32) -> Option<WallHit> {
         let l = self.period;
         let (q0, c0) = self.locate_cell(p);
         let ng = self.ng;
-        let g = self.g;
-        // grid walk (Amanatides-Woo) in unbounded cell coordinates of the
-        // tile frame, kept as the cell in the tile (wi) and the tile (k)
-        let mut wi = c0.map(|c| c as i32);
-        let mut k = [0i32; 3];
-        // (without branches: the signs of d are a coin toss per flight)
-        let dv = [d.x, d.y, d.z];
-        let qv = [q0.x, q0.y, q0.z];
-        let step: [i32; 3] = std::array::from_fn(|a| (dv[a] > 0.0) as i32 - (dv[a] < 0.0) as i32);
-        let mut t_next: [f32; 3] = std::array::from_fn(|a| {
-            let wall = (wi[a] + (dv[a] > 0.0) as i32) as f32 * g;
-            if dv[a] != 0.0 {
-                (wall - qv[a]) / dv[a]
-            } else {
-                f32::INFINITY
-            }
-        });
-        let t_delta: [f32; 3] = std::array::from_fn(|a| {
-            if dv[a] != 0.0 {
-                g / dv[a].abs()
-            } else {
-                f32::INFINITY
-            }
-        });
+        let mut walk = GridWalk::new(q0, c0, d, self.g);
         // per lane: nearest entry so far and the index of its block (as a
         // float, exact below 2^24 blocks); the block, lane and tile shift
         // of the nearest
@@ -408,74 +440,48 @@ impl Cells {
         let mut which = [0.0f32; LANES];
         let mut nearest = t_max;
         let mut hit = (0usize, 0usize, Vec3::ZERO);
-        let n = ng as usize;
         loop {
-            let cell = (wi[2] as usize * n + wi[1] as usize) * n + wi[0] as usize;
-            let shift = Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32) * l;
-            let o = q0 - shift;
-            let b0 = self.span(cell).0;
-            for (i, s) in self.list(cell).iter().enumerate() {
-                let ox = lanes(|j| o.x - s.x[j]);
-                let oy = lanes(|j| o.y - s.y[j]);
-                let oz = lanes(|j| o.z - s.z[j]);
-                let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
-                let cc = lanes(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] - s.r2[j]);
-                // r^2 - |perpendicular|^2: no cancellation near tangency
-                let disc = lanes(|j| {
-                    let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
-                    s.r2[j] - (px * px + py * py + pz * pz)
-                });
-                let t = lanes(|j| -b[j] - max0(disc[j]).sqrt());
-                // moving towards the centre, from outside, not missing
-                let ok: [bool; LANES] = std::array::from_fn(|j| {
-                    (b[j] < 0.0) & (cc[j] > 0.0) & (disc[j] > 0.0) & (t[j] < best[j])
-                });
-                best = select(ok, t, best);
-                which = select(ok, [(b0 + i) as f32; LANES], which);
-            }
-            let m = min4(best);
+            let cell = walk.index(ng);
+            let shift = walk.shift(l);
+            S::entries(
+                self.list(cell),
+                self.span(cell).0,
+                q0 - shift,
+                d,
+                &mut best,
+                &mut which,
+            );
+            // the first lane of equals (a sphere met again in another grid
+            // cell, in another lane, gives the same t): a lane before the
+            // kept one, or a new minimum, is from this cell
+            let (m, j) = S::first_min(&best);
             if m <= nearest {
-                // the first lane of equals (a sphere met again in another
-                // grid cell, in another lane, gives the same t): a lane
-                // before the kept one, or a new minimum, is from this cell
-                let j = (0..LANES).position(|j| best[j] == m).unwrap_or(0);
                 if m < nearest || j != hit.1 {
                     hit = (which[j] as usize, j, shift);
                 }
                 nearest = m;
             }
-            let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-                0
-            } else if t_next[1] <= t_next[2] {
-                1
-            } else {
-                2
-            };
-            let t_exit = t_next[a];
+            let (a, t_exit) = walk.exit();
             if nearest <= t_exit || t_exit >= t_max {
                 break;
             }
-            wi[a] += step[a];
-            if wi[a] == ng {
-                wi[a] = 0;
-                k[a] += 1;
-            } else if wi[a] < 0 {
-                wi[a] = ng - 1;
-                k[a] -= 1;
-            }
-            t_next[a] += t_delta[a];
+            walk.advance(a, ng);
         }
         if nearest >= t_max {
             return None;
         }
-        let s = &self.blocks[hit.0];
-        let j = hit.1;
         let x = q0 + d * nearest;
-        let c = Vec3::new(s.x[j], s.y[j], s.z[j]) + hit.2;
         Some(WallHit {
             t: nearest,
-            normal: (c - x).normalize(),
+            normal: (self.centre(hit.0, hit.1, hit.2) - x).normalize(),
         })
+    }
+
+    /// Centre of the sphere in lane `j` of block `b`, shifted by `shift`.
+    #[inline(always)]
+    fn centre(&self, b: usize, j: usize, shift: Vec3) -> Vec3 {
+        let s = &self.blocks[b];
+        Vec3::new(s.x[j], s.y[j], s.z[j]) + shift
     }
 
     /// The pore crossing: from `p` in the air of a cell along the unit
@@ -489,120 +495,77 @@ impl Cells {
             // SAFETY: the CPU has AVX2 (checked just above).
             return unsafe { self.cross_avx2(p, d) };
         }
-        self.cross_body(p, d)
+        self.cross_with::<Portable>(p, d)
     }
 
-    /// `cross` compiled for AVX2 (the same arithmetic, so the same bits).
+    /// `cross` with the AVX2 inner loops (the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn cross_avx2(&self, p: Vec3, d: Vec3) -> Option<WallHit> {
-        self.cross_body(p, d)
+        self.cross_with::<Avx2>(p, d)
     }
 
     #[inline(always)]
-    fn cross_body(&self, p: Vec3, d: Vec3) -> Option<WallHit> {
-        let mut t = 0.0f32;
-        let mut last = Vec3::ZERO;
-        let inv_d = Vec3::ONE / d;
-        let g = self.g;
-        let n = self.ng as usize;
-        // per axis: the side of a grid cell the line leaves it by (0 or 1),
-        // and the distance to it per unit of coordinate (inf along a plane)
-        let dv = [d.x, d.y, d.z];
-        let iv = [inv_d.x, inv_d.y, inv_d.z];
-        let side: [i32; 3] = std::array::from_fn(|a| (dv[a] > 0.0) as i32);
-        let flat: [bool; 3] = std::array::from_fn(|a| dv[a] == 0.0);
+    fn cross_with<S: Scan>(&self, p: Vec3, d: Vec3) -> Option<WallHit> {
+        let l = self.period;
+        let (q0, c0) = self.locate_cell(p);
+        let ng = self.ng;
+        let mut walk = GridWalk::new(q0, c0, d, self.g);
+        // The air along the line is the union of the spheres' intervals
+        // [t_in, t_out]. From s = 0 (p is in the air), s moves to the far end
+        // of the interval that covers it and reaches furthest, a hair
+        // beyond, until no interval covers s. Every sphere that covers a
+        // point of the line is in the list of the grid cell the point is in,
+        // so the grid cells are taken in the line's order: a cell's spheres
+        // wait only for the (predictable) branch that says s has reached it.
+        let mut s = 0.0f32;
+        // the block, lane and tile shift of the sphere whose interval s last
+        // left (its wall is where the line leaves the air)
+        let mut last: Option<(usize, usize, Vec3)> = None;
         let mut jumps = 0;
-        // the line's entry and exit of each sphere in the grid cell, kept to
-        // follow the chain of overlapping cells inside the grid cell
-        let mut t_in = [[0.0f32; LANES]; MAX_SWEEP];
-        let mut t_out = [[0.0f32; LANES]; MAX_SWEEP];
-        while jumps < 256 {
-            let x = p + d * t;
-            let (q, ci) = self.locate_cell(x);
-            let cell = (ci[2] * n + ci[1]) * n + ci[0];
-            let (b0, list) = (self.span(cell).0, self.list(cell));
-            let base = x - q; // tile origin of x
-            let sweep = list.len() <= MAX_SWEEP;
-            // per lane: the furthest exit of a sphere containing x, and the
-            // index of its block (as a float, exact below 2^24 blocks)
-            let mut far = [-1.0f32; LANES];
-            let mut which = [0.0f32; LANES];
-            for (k, s) in list.iter().enumerate() {
-                let ox = lanes(|j| q.x - s.x[j]);
-                let oy = lanes(|j| q.y - s.y[j]);
-                let oz = lanes(|j| q.z - s.z[j]);
-                let cc = lanes(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] - s.r2[j]);
-                let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
-                let h = lanes(|j| {
-                    let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
-                    s.r2[j] - (px * px + py * py + pz * pz)
-                });
-                let sq = lanes(|j| max0(h[j]).sqrt());
-                let te = lanes(|j| -b[j] + sq[j]);
-                let ok: [bool; LANES] = std::array::from_fn(|j| (cc[j] < 0.0) & (te[j] > far[j]));
-                far = select(ok, te, far);
-                which = select(ok, [(b0 + k) as f32; LANES], which);
-                if sweep {
-                    let hit: [bool; LANES] = std::array::from_fn(|j| h[j] > 0.0);
-                    t_in[k] = select(hit, lanes(|j| -b[j] - sq[j]), [f32::INFINITY; LANES]);
-                    t_out[k] = te;
-                }
-            }
-            let j = argmax(far);
-            if far[j] < 0.0 {
-                // (None: x is in no cell)
-                return (jumps > 0).then(|| WallHit {
-                    t,
-                    normal: (last - (p + d * t)).normalize(),
-                });
-            }
-            // to the far side of the cell reaching furthest, a hair beyond
-            let mut s = far[j] + 2e-5;
-            let c = &self.blocks[which[j] as usize];
-            last = Vec3::new(c.x[j], c.y[j], c.z[j]) + base;
-            jumps += 1;
-            if sweep {
-                // on while the point stays in this grid cell, whose list
-                // holds every sphere that can contain it
-                let qv = [q.x, q.y, q.z];
-                let box_exit = |a: usize| {
-                    let wall = (ci[a] as i32 + side[a]) as f32 * g;
-                    if flat[a] {
-                        f32::INFINITY
-                    } else {
-                        (wall - qv[a]) * iv[a]
-                    }
+        let mut stack = [[[0.0f32; LANES]; MAX_SWEEP]; 2];
+        let mut heap: [Vec<[f32; LANES]>; 2] = Default::default();
+        'cells: loop {
+            let (axis, t_cell) = walk.exit();
+            if s < t_cell {
+                let cell = walk.index(ng);
+                let shift = walk.shift(l);
+                let (b0, list) = (self.span(cell).0, self.list(cell));
+                let n = list.len();
+                let [t_in, t_out] = if n <= MAX_SWEEP {
+                    let [a, b] = &mut stack;
+                    [&mut a[..n], &mut b[..n]]
+                } else {
+                    heap.iter_mut().for_each(|v| v.resize(n, [0.0; LANES]));
+                    let [a, b] = &mut heap;
+                    [&mut a[..], &mut b[..]]
                 };
-                let t_box = box_exit(0).min(box_exit(1)).min(box_exit(2)) - 1e-4;
-                while s < t_box && jumps < 256 {
-                    let mut far = [-1.0f32; LANES];
-                    let mut which = [0.0f32; LANES];
-                    for k in 0..list.len() {
-                        let ok: [bool; LANES] = std::array::from_fn(|j| {
-                            (t_in[k][j] < s) & (t_out[k][j] > s) & (t_out[k][j] > far[j])
-                        });
-                        far = select(ok, t_out[k], far);
-                        which = select(ok, [k as f32; LANES], which);
+                S::intervals(list, q0 - shift, d, t_in, t_out);
+                loop {
+                    let Some((far, k, j)) = S::covering(t_in, t_out, s) else {
+                        // no interval covers s: the line leaves the air
+                        // here (None: p is in no cell)
+                        break 'cells;
+                    };
+                    s = far + 2e-5;
+                    last = Some((b0 + k, j, shift));
+                    jumps += 1;
+                    if jumps >= 256 {
+                        // 256 overlapping cells along one line: give the
+                        // last wall met
+                        break 'cells;
                     }
-                    let j = argmax(far);
-                    if far[j] < 0.0 {
-                        // out of the union by the intervals: the outer
-                        // loop's point test (that of `inside`) decides
+                    if s >= t_cell {
                         break;
                     }
-                    s = far[j] + 2e-5;
-                    let b = &list[which[j] as usize];
-                    last = Vec3::new(b.x[j], b.y[j], b.z[j]) + base;
-                    jumps += 1;
                 }
             }
-            t += s;
+            walk.advance(axis, ng);
         }
-        // 256 overlapping cells along one line: give the last wall met
+        let (b, j, shift) = last?;
         Some(WallHit {
-            t,
-            normal: (last - (p + d * t)).normalize(),
+            t: s,
+            normal: (self.centre(b, j, shift) - (q0 + d * s)).normalize(),
         })
     }
 }
@@ -647,10 +610,62 @@ mod tests {
         assert_eq!(c.blocks, cells().blocks);
     }
 
+    /// The AVX2 inner loops give the portable ones' bits (the same
+    /// arithmetic in the same order), so a capture does not depend on the CPU.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_queries_give_the_portable_bits() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("skipped: this CPU has no AVX2");
+            return;
+        }
+        let dense = Cells::build(0.95, [0.1, 0.3], 6.0, 1.5, 0.3, 5);
+        let mut rng = Rng::new(11, 3);
+        let (mut entries, mut crossings) = (0, 0);
+        for c in [&cells(), &dense] {
+            for _ in 0..10_000 {
+                let p = Vec3::new(
+                    rng.uniform() * 30.0 - 15.0,
+                    rng.uniform() * 30.0 - 15.0,
+                    rng.uniform() * 30.0 - 15.0,
+                );
+                let d = crate::walk::sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+                let t_max = rng.uniform() * 4.0;
+                let bits = |h: Option<WallHit>| {
+                    h.map(|h| (h.t.to_bits(), h.normal.to_array().map(f32::to_bits)))
+                };
+                // SAFETY: AVX2 is present (checked above)
+                let (e, x) = unsafe { (c.first_entry_avx2(p, d, t_max), c.cross_avx2(p, d)) };
+                assert_eq!(bits(e), bits(c.first_entry_with::<Portable>(p, d, t_max)));
+                assert_eq!(bits(x), bits(c.cross_with::<Portable>(p, d)));
+                entries += e.is_some() as usize;
+                crossings += x.is_some() as usize;
+            }
+        }
+        assert!(entries > 5000 && crossings > 5000, "{entries} {crossings}");
+    }
+
     /// first_entry and cross against a brute-force march along the line.
     #[test]
     fn wall_hits_match_a_fine_march() {
-        let c = cells();
+        march_check(&cells(), 300);
+    }
+
+    /// The same on a dense foam whose grid cells' lists outgrow the
+    /// crossing's stack (its heap path).
+    #[test]
+    fn wall_hits_match_a_fine_march_in_a_dense_foam() {
+        let c = Cells::build(0.95, [0.1, 0.3], 6.0, 1.5, 0.3, 5);
+        let longest = (0..c.start.len() - 1)
+            .map(|i| c.list(i).len())
+            .max()
+            .unwrap();
+        assert!(longest > MAX_SWEEP, "{longest} blocks");
+        march_check(&c, 100);
+    }
+
+    /// Checks of `cross` and `first_entry` (at least `entries` of the latter) at random points.
+    fn march_check(c: &Cells, entries: usize) {
         let mut rng = Rng::new(7, 1);
         let mut checked = (0, 0);
         let mut junction = 0usize;
@@ -706,7 +721,7 @@ mod tests {
                 }
             }
         }
-        assert!(checked.0 > 1000 && checked.1 > 300, "{checked:?}");
+        assert!(checked.0 > 1000 && checked.1 > entries, "{checked:?}");
         assert!(junction * 100 < checked.0, "{junction} of {}", checked.0);
     }
 }

@@ -221,10 +221,13 @@ impl ResampledLobe {
             None
         } else {
             let cos_t = (1.0 - sin2_t).sqrt();
-            let r_parl = (eta * c - cos_t) / (eta * c + cos_t);
-            let r_perp = (c - eta * cos_t) / (c + eta * cos_t);
-            let fr = (r_parl * r_parl + r_perp * r_perp) / 2.0;
-            (uc >= fr).then(|| -wo * inv_eta + (c * inv_eta - cos_t) * n)
+            // uc >= F = (r_parl^2 + r_perp^2) / 2, with r_parl = a / A and
+            // r_perp = b / B, compared without a division
+            let (a, aa) = (eta * c - cos_t, eta * c + cos_t);
+            let (b, bb) = (c - eta * cos_t, c + eta * cos_t);
+            let (a2, aa2, b2, bb2) = (a * a, aa * aa, b * b, bb * bb);
+            (2.0 * uc * aa2 * bb2 >= a2 * bb2 + b2 * aa2)
+                .then(|| -wo * inv_eta + (c * inv_eta - cos_t) * n)
         };
         let wi = match refracted {
             Some(wt) if wt.z * wo.z < 0.0 => wt,
