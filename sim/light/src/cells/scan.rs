@@ -81,17 +81,16 @@ impl Scan for Portable {
             let oy = lanes(|j| o.y - s.y[j]);
             let oz = lanes(|j| o.z - s.z[j]);
             let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
-            let cc = lanes(|j| ox[j] * ox[j] + oy[j] * oy[j] + oz[j] * oz[j] - s.r2[j]);
             // r^2 - |perpendicular|^2: no cancellation near tangency
             let disc = lanes(|j| {
                 let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
                 s.r2[j] - (px * px + py * py + pz * pz)
             });
             let t = lanes(|j| -b[j] - max0(disc[j]).sqrt());
-            // moving towards the centre, from outside, not missing
-            let ok: [bool; LANES] = std::array::from_fn(|j| {
-                (b[j] < 0.0) & (cc[j] > 0.0) & (disc[j] > 0.0) & (t[j] < best[j])
-            });
+            // met, ahead: the entry point lies ahead only when the line
+            // starts outside the sphere and moves towards its centre
+            let ok: [bool; LANES] =
+                std::array::from_fn(|j| (disc[j] > 0.0) & (t[j] > 0.0) & (t[j] < best[j]));
             *best = select(ok, t, *best);
             *which = select(ok, [(b0 + i) as f32; LANES], *which);
         }
@@ -189,10 +188,10 @@ mod avx2 {
         unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) }
     }
 
-    /// What the blocks' loops share: (o - c) per axis, b = (o - c).d, and
-    /// r^2 - |perpendicular|^2 (the Portable order of operations).
+    /// What the blocks' loops share: b = (o - c).d and r^2 - |perpendicular|^2
+    /// (the Portable order of operations).
     #[inline(always)]
-    unsafe fn along(s: &Block, o: [__m256; 3], d: [__m256; 3]) -> (__m256, __m256, __m256) {
+    unsafe fn along(s: &Block, o: [__m256; 3], d: [__m256; 3]) -> (__m256, __m256) {
         unsafe {
             let r2 = ld(&s.r2);
             let ox = _mm256_sub_ps(o[0], ld(&s.x));
@@ -212,15 +211,7 @@ mod avx2 {
                     _mm256_mul_ps(pz, pz),
                 ),
             );
-            // |o - c|^2 - r^2, for first_entry
-            let cc = _mm256_sub_ps(
-                _mm256_add_ps(
-                    _mm256_add_ps(_mm256_mul_ps(ox, ox), _mm256_mul_ps(oy, oy)),
-                    _mm256_mul_ps(oz, oz),
-                ),
-                r2,
-            );
-            (b, h, cc)
+            (b, h)
         }
     }
 
@@ -251,18 +242,15 @@ mod avx2 {
                 let sign = _mm256_set1_ps(-0.0);
                 let (mut vb, mut vw) = (ld(best), ld(which));
                 for (i, s) in list.iter().enumerate() {
-                    let (b, h, cc) = along(s, ov, dv);
+                    let (b, h) = along(s, ov, dv);
                     let t = _mm256_sub_ps(
                         _mm256_xor_ps(b, sign),
                         _mm256_sqrt_ps(_mm256_max_ps(h, zero)),
                     );
                     let ok = _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GT_OQ>(h, zero),
                         _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_LT_OQ>(b, zero),
-                            _mm256_cmp_ps::<_CMP_GT_OQ>(cc, zero),
-                        ),
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_GT_OQ>(h, zero),
+                            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
                             _mm256_cmp_ps::<_CMP_LT_OQ>(t, vb),
                         ),
                     );
@@ -288,7 +276,7 @@ mod avx2 {
                 let sign = _mm256_set1_ps(-0.0);
                 let inf = _mm256_set1_ps(f32::INFINITY);
                 for ((s, a), e) in list.iter().zip(t_in.iter_mut()).zip(t_out.iter_mut()) {
-                    let (b, h, _) = along(s, ov, dv);
+                    let (b, h) = along(s, ov, dv);
                     let nb = _mm256_xor_ps(b, sign);
                     let sq = _mm256_sqrt_ps(_mm256_max_ps(h, zero));
                     let hit = _mm256_cmp_ps::<_CMP_GT_OQ>(h, zero);
