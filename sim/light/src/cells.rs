@@ -60,6 +60,11 @@ struct Block {
 /// A sphere no line reaches and no point lies in (radius 0, far away).
 const EMPTY: [f32; 4] = [1e9, 1e9, 1e9, 0.0];
 
+/// The queries' lane arrays on the stack, aligned so that no vector load
+/// or store of one splits a cache line.
+#[repr(align(64))]
+struct Aligned<T>(T);
+
 /// Blocks of a grid cell's list whose pore-crossing intervals `Cells::cross`
 /// keeps on the stack (longer lists, rare, keep them on the heap).
 const MAX_SWEEP: usize = 8;
@@ -436,8 +441,8 @@ impl Cells {
         // per lane: nearest entry so far and the index of its block (as a
         // float, exact below 2^24 blocks); the block, lane and tile shift
         // of the nearest
-        let mut best = [t_max; LANES];
-        let mut which = [0.0f32; LANES];
+        let mut lanes = Aligned([[t_max; LANES], [0.0f32; LANES]]);
+        let [best, which] = &mut lanes.0;
         let mut nearest = t_max;
         let mut hit = (0usize, 0usize, Vec3::ZERO);
         loop {
@@ -448,13 +453,13 @@ impl Cells {
                 self.span(cell).0,
                 q0 - shift,
                 d,
-                &mut best,
-                &mut which,
+                best,
+                which,
             );
             // the first lane of equals (a sphere met again in another grid
             // cell, in another lane, gives the same t): a lane before the
             // kept one, or a new minimum, is from this cell
-            let (m, j) = S::first_min(&best);
+            let (m, j) = S::first_min(best);
             if m <= nearest {
                 if m < nearest || j != hit.1 {
                     hit = (which[j] as usize, j, shift);
@@ -523,7 +528,7 @@ impl Cells {
         // left (its wall is where the line leaves the air)
         let mut last: Option<(usize, usize, Vec3)> = None;
         let mut jumps = 0;
-        let mut stack = [[[0.0f32; LANES]; MAX_SWEEP]; 2];
+        let mut stack = Aligned([[[0.0f32; LANES]; MAX_SWEEP]; 2]);
         let mut heap: [Vec<[f32; LANES]>; 2] = Default::default();
         'cells: loop {
             let (axis, t_cell) = walk.exit();
@@ -533,7 +538,7 @@ impl Cells {
                 let (b0, list) = (self.span(cell).0, self.list(cell));
                 let n = list.len();
                 let [t_in, t_out] = if n <= MAX_SWEEP {
-                    let [a, b] = &mut stack;
+                    let [a, b] = &mut stack.0;
                     [&mut a[..n], &mut b[..n]]
                 } else {
                     heap.iter_mut().for_each(|v| v.resize(n, [0.0; LANES]));

@@ -66,6 +66,21 @@ pub(super) trait Scan {
 /// Plain arrays, which the compiler vectorises as it can.
 pub(super) struct Portable;
 
+/// What the blocks' loops share: b = (o - c).d and r^2 - |perpendicular|^2
+/// (no cancellation near tangency, unlike b^2 - |o - c|^2 + r^2).
+#[inline(always)]
+fn along(s: &Block, o: Vec3, d: Vec3) -> ([f32; LANES], [f32; LANES]) {
+    let ox = lanes(|j| o.x - s.x[j]);
+    let oy = lanes(|j| o.y - s.y[j]);
+    let oz = lanes(|j| o.z - s.z[j]);
+    let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
+    let h = lanes(|j| {
+        let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
+        s.r2[j] - (px * px + py * py + pz * pz)
+    });
+    (b, h)
+}
+
 impl Scan for Portable {
     #[inline(always)]
     fn entries(
@@ -77,15 +92,7 @@ impl Scan for Portable {
         which: &mut [f32; LANES],
     ) {
         for (i, s) in list.iter().enumerate() {
-            let ox = lanes(|j| o.x - s.x[j]);
-            let oy = lanes(|j| o.y - s.y[j]);
-            let oz = lanes(|j| o.z - s.z[j]);
-            let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
-            // r^2 - |perpendicular|^2: no cancellation near tangency
-            let disc = lanes(|j| {
-                let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
-                s.r2[j] - (px * px + py * py + pz * pz)
-            });
+            let (b, disc) = along(s, o, d);
             let t = lanes(|j| -b[j] - max0(disc[j]).sqrt());
             // met, ahead: the entry point lies ahead only when the line
             // starts outside the sphere and moves towards its centre
@@ -105,14 +112,7 @@ impl Scan for Portable {
         t_out: &mut [[f32; LANES]],
     ) {
         for (k, s) in list.iter().enumerate() {
-            let ox = lanes(|j| o.x - s.x[j]);
-            let oy = lanes(|j| o.y - s.y[j]);
-            let oz = lanes(|j| o.z - s.z[j]);
-            let b = lanes(|j| ox[j] * d.x + oy[j] * d.y + oz[j] * d.z);
-            let h = lanes(|j| {
-                let (px, py, pz) = (ox[j] - d.x * b[j], oy[j] - d.y * b[j], oz[j] - d.z * b[j]);
-                s.r2[j] - (px * px + py * py + pz * pz)
-            });
+            let (b, h) = along(s, o, d);
             let sq = lanes(|j| max0(h[j]).sqrt());
             let hit: [bool; LANES] = std::array::from_fn(|j| h[j] > 0.0);
             t_in[k] = select(hit, lanes(|j| -b[j] - sq[j]), [f32::INFINITY; LANES]);
@@ -188,8 +188,7 @@ mod avx2 {
         unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) }
     }
 
-    /// What the blocks' loops share: b = (o - c).d and r^2 - |perpendicular|^2
-    /// (the Portable order of operations).
+    /// `super::along` (the same order of operations).
     #[inline(always)]
     unsafe fn along(s: &Block, o: [__m256; 3], d: [__m256; 3]) -> (__m256, __m256) {
         unsafe {
