@@ -308,9 +308,9 @@ mod avx2 {
                     which = _mm256_blendv_ps(which, _mm256_set1_ps(k as f32), ok);
                 }
                 let (m, j) = first_of(far, _mm256_max_ps);
-                let mut w = [0.0; LANES];
-                st(&mut w, which);
-                (m > s).then_some((m, w[j] as usize, j))
+                // lane j of which, without a trip through memory
+                let w = _mm256_permutevar8x32_ps(which, _mm256_set1_epi32(j as i32));
+                (m > s).then_some((m, _mm256_cvtss_f32(w) as usize, j))
             }
         }
 
