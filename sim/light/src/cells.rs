@@ -467,7 +467,8 @@ impl Cells {
                 nearest = m;
             }
             let (a, t_exit) = walk.exit();
-            if nearest <= t_exit || t_exit >= t_max {
+            // (a NaN direction ends the walk too)
+            if nearest <= t_exit || !(t_exit < t_max) {
                 break;
             }
             walk.advance(a, ng);
@@ -532,6 +533,10 @@ impl Cells {
         let mut heap: [Vec<[f32; LANES]>; 2] = Default::default();
         'cells: loop {
             let (axis, t_cell) = walk.exit();
+            if t_cell.is_nan() {
+                // a NaN direction: no grid cell is ever left
+                return None;
+            }
             if s < t_cell {
                 let cell = walk.index(ng);
                 let shift = walk.shift(l);
@@ -654,6 +659,24 @@ mod tests {
     #[test]
     fn wall_hits_match_a_fine_march() {
         march_check(&cells(), 300);
+    }
+
+    /// A NaN direction ends both queries (no endless grid walk).
+    #[test]
+    fn a_nan_direction_ends_the_queries() {
+        let c = cells();
+        let mut rng = Rng::new(2, 9);
+        for d in [Vec3::new(f32::NAN, 0.0, 1.0), Vec3::NAN] {
+            for _ in 0..200 {
+                let p = Vec3::new(
+                    rng.uniform() * 8.0,
+                    rng.uniform() * 8.0,
+                    rng.uniform() * 8.0,
+                );
+                assert!(c.cross(p, d).is_none());
+                assert!(c.first_entry(p, d, 1.0).is_none());
+            }
+        }
     }
 
     /// The same on a dense foam whose grid cells' lists outgrow the
