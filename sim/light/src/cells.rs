@@ -468,7 +468,7 @@ impl Cells {
             }
             let (a, t_exit) = walk.exit();
             // (a NaN direction ends the walk too)
-            if nearest <= t_exit || !(t_exit < t_max) {
+            if nearest <= t_exit || t_exit >= t_max || t_exit.is_nan() {
                 break;
             }
             walk.advance(a, ng);
