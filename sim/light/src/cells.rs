@@ -588,6 +588,24 @@ mod tests {
         Cells::build(0.75, [0.2, 0.8], 8.0, 1.45, 0.3, 3)
     }
 
+    /// A foam whose grid cells' lists outgrow the crossing's stack.
+    fn dense() -> Cells {
+        Cells::build(0.95, [0.1, 0.3], 6.0, 1.5, 0.3, 5)
+    }
+
+    /// A point in a 30 mm cube around the origin and a unit direction.
+    fn random_ray(rng: &mut Rng) -> (Vec3, Vec3) {
+        let p = Vec3::new(
+            rng.uniform() * 30.0 - 15.0,
+            rng.uniform() * 30.0 - 15.0,
+            rng.uniform() * 30.0 - 15.0,
+        );
+        (
+            p,
+            crate::walk::sample_uniform_sphere([rng.uniform(), rng.uniform()]),
+        )
+    }
+
     #[test]
     fn porosity_hits_its_target_and_sampled_points_agree() {
         let c = cells();
@@ -629,17 +647,11 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX2");
             return;
         }
-        let dense = Cells::build(0.95, [0.1, 0.3], 6.0, 1.5, 0.3, 5);
         let mut rng = Rng::new(11, 3);
         let (mut entries, mut crossings) = (0, 0);
-        for c in [&cells(), &dense] {
+        for c in [&cells(), &dense()] {
             for _ in 0..10_000 {
-                let p = Vec3::new(
-                    rng.uniform() * 30.0 - 15.0,
-                    rng.uniform() * 30.0 - 15.0,
-                    rng.uniform() * 30.0 - 15.0,
-                );
-                let d = crate::walk::sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+                let (p, d) = random_ray(&mut rng);
                 let t_max = rng.uniform() * 4.0;
                 let bits = |h: Option<WallHit>| {
                     h.map(|h| (h.t.to_bits(), h.normal.to_array().map(f32::to_bits)))
@@ -679,11 +691,10 @@ mod tests {
         }
     }
 
-    /// The same on a dense foam whose grid cells' lists outgrow the
-    /// crossing's stack (its heap path).
+    /// The same on the dense foam (the crossing's heap path).
     #[test]
     fn wall_hits_match_a_fine_march_in_a_dense_foam() {
-        let c = Cells::build(0.95, [0.1, 0.3], 6.0, 1.5, 0.3, 5);
+        let c = dense();
         let longest = (0..c.start.len() - 1)
             .map(|i| c.list(i).len())
             .max()
@@ -698,12 +709,7 @@ mod tests {
         let mut checked = (0, 0);
         let mut junction = 0usize;
         for _ in 0..3000 {
-            let p = Vec3::new(
-                rng.uniform() * 30.0 - 15.0,
-                rng.uniform() * 30.0 - 15.0,
-                rng.uniform() * 30.0 - 15.0,
-            );
-            let d = crate::walk::sample_uniform_sphere([rng.uniform(), rng.uniform()]);
+            let (p, d) = random_ray(&mut rng);
             let march = |from_inside: bool| {
                 let mut t = 0.0f32;
                 while t < 6.0 {

@@ -22,7 +22,7 @@ fn lanes(f: impl FnMut(usize) -> f32) -> [f32; LANES] {
 
 /// Lane-wise `if m { a } else { b }`.
 #[inline(always)]
-pub(super) fn select(m: [bool; LANES], a: [f32; LANES], b: [f32; LANES]) -> [f32; LANES] {
+fn select(m: [bool; LANES], a: [f32; LANES], b: [f32; LANES]) -> [f32; LANES] {
     std::array::from_fn(|j| if m[j] { a[j] } else { b[j] })
 }
 
