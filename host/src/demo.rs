@@ -432,29 +432,24 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             std::fs::create_dir_all(&renders_dir)?;
             let settings = render_settings(opts.scale);
             let b = Bar::new("render", 6, opts.quiet);
-            // `object`'s scenes, one per lighting.
-            let scenes = |object: &str| -> Result<Vec<(&'static str, Scene)>> {
-                let base = Scene::builtin(object)?;
-                (lightings(&base).into_iter())
-                    .map(|(name, lights, env)| {
-                        let mut scene = Scene::builtin(object)?;
-                        scene.lights = lights;
-                        scene.env_visible = env.is_some();
-                        scene.env = env;
-                        Ok((name, scene))
-                    })
-                    .collect()
+            // One scene per object: the lightings change only its lights.
+            let light = |scene: &mut Scene, lights: Vec<Light>, env: Option<EnvMap>| {
+                scene.lights = lights;
+                scene.env_visible = env.is_some();
+                scene.env = env;
             };
             // One pass 1 per object (surface samples, R_d table, texture),
-            // both objects side by side: the texture synthesis grows one
-            // point at a time, on one core. Each lighting then redoes only
-            // its irradiance.
+            // under its first lighting, both objects side by side: the
+            // texture synthesis grows one point at a time, on one core. Each
+            // lighting then redoes only its irradiance.
             let t = Instant::now();
-            let first = |object: &str| -> Result<(Vec<(&'static str, Scene)>, Prepared)> {
-                let scenes = scenes(object)?;
+            let first = |object: &str| -> Result<(Scene, Prepared)> {
+                let mut scene = Scene::builtin(object)?;
+                let [(_, lights, env), ..] = lightings(&scene);
+                light(&mut scene, lights, env);
                 let stats = &mut RenderStats::default();
-                let prepared = prepare(&scenes[0].1, &model, &settings, stats)?;
-                Ok((scenes, prepared))
+                let prepared = prepare(&scene, &model, &settings, stats)?;
+                Ok((scene, prepared))
             };
             let (teapot, bread) = rayon::join(|| first("teapot"), || first("bread"));
             b.println(&format!(
@@ -462,14 +457,15 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                 t.elapsed().as_secs_f64()
             ));
             for (object, first) in [("teapot", teapot), ("bread", bread)] {
-                let (scenes, mut prep) = first?;
-                for (k, (light_name, scene)) in scenes.iter().enumerate() {
+                let (mut scene, mut prep) = first?;
+                for (k, (light_name, lights, env)) in lightings(&scene).into_iter().enumerate() {
                     let t = Instant::now();
                     if k > 0 {
-                        prep.relight(scene, &model, &settings, &mut RenderStats::default())?;
+                        light(&mut scene, lights, env);
+                        prep.relight(&scene, &model, &settings, &mut RenderStats::default())?;
                     }
                     let (img, _) =
-                        render_prepared(scene, &model, &settings, &prep, &AtomicBool::new(false))
+                        render_prepared(&scene, &model, &settings, &prep, &AtomicBool::new(false))
                             .context("render cancelled")?;
                     let stem = format!("{object}-{light_name}");
                     img.write_exr(&renders_dir.join(format!("{stem}.exr")))?;
