@@ -156,13 +156,22 @@ impl TrowbridgeReitz {
     /// `sample_wm`, from other numbers, in fewer dependent steps.
     #[inline]
     pub fn sample_wm_cap(&self, wh: Vec3, u: [f32; 2]) -> Vec3 {
+        self.sample_wm_cap_scaled(wh, 1.0, u).normalize()
+    }
+
+    /// `sample_wm_cap` for `wh` scaled by `k` > 0 (unit `wh / k`), before
+    /// its normalisation: a vector along wm. The scaled sphere's cap spares
+    /// the walls' lobe a normalisation (a square root and a division) on
+    /// the chain that every sampled direction waits for.
+    #[inline(always)]
+    fn sample_wm_cap_scaled(&self, wh: Vec3, k: f32, u: [f32; 2]) -> Vec3 {
         let a = self.alpha;
-        // a uniform point on the unit sphere's cap z > -wh.z, plus wh
-        let z = (1.0 - u[0]) * (1.0 + wh.z) - wh.z;
-        let r = (1.0 - z * z).max(0.0).sqrt();
+        // a uniform point on the sphere of radius k's cap z > -wh.z, plus wh
+        let z = (1.0 - u[0]) * (k + wh.z) - wh.z;
+        let r = (k * k - z * z).max(0.0).sqrt();
         let (c, s) = unit_circle_from_bits((u[1] * 4_294_967_296.0) as u32);
         let h = Vec3::new(r * c + wh.x, r * s + wh.y, z + wh.z);
-        Vec3::new(a * h.x, a * h.y, h.z.max(1e-6)).normalize()
+        Vec3::new(a * h.x, a * h.y, h.z.max(1e-6 * k))
     }
 }
 
@@ -177,20 +186,26 @@ impl TrowbridgeReitz {
 pub struct ResampledLobe {
     bsdf: Dielectric,
     wo: Vec3,
-    /// `wo` in the unit-hemisphere frame (`TrowbridgeReitz::to_hemisphere`).
+    /// `wo` in the unit-hemisphere frame (`TrowbridgeReitz::to_hemisphere`),
+    /// times its length there before normalisation, s_o.
     wh: Vec3,
-    /// 1 + 2 Lambda(wo) = sqrt(1 + alpha^2 tan^2 theta_o).
-    k_o: f32,
+    /// |cos theta_o| and s_o = sqrt(cos^2 theta_o + alpha^2 sin^2 theta_o):
+    /// 1 + 2 Lambda(wo) = s_o / |cos theta_o|.
+    z_o: f32,
+    s_o: f32,
     inv_eta: f32,
 }
 
 impl ResampledLobe {
     pub fn new(bsdf: &Dielectric, wo: Vec3) -> ResampledLobe {
+        let a = bsdf.mf.alpha;
+        let wh = Vec3::new(a * wo.x, a * wo.y, wo.z);
         ResampledLobe {
             bsdf: *bsdf,
             wo,
-            wh: bsdf.mf.to_hemisphere(wo),
-            k_o: 1.0 + 2.0 * bsdf.mf.lambda(wo),
+            wh: if wo.z < 0.0 { -wh } else { wh },
+            z_o: wo.z.abs(),
+            s_o: wh.length(),
             inv_eta: 1.0 / bsdf.eta,
         }
     }
@@ -207,44 +222,56 @@ impl ResampledLobe {
         if wo.z == 0.0 {
             return None;
         }
-        let wm = self.bsdf.mf.sample_wm_cap(self.wh, u);
-        // Fresnel (fr_dielectric) and refraction (refract) sharing cos_t;
-        // eta is n_wall / n_air relative to the side wo comes from
-        let cos_i = wo.dot(wm);
-        let (eta, inv_eta, c, n) = if cos_i < 0.0 {
-            (self.inv_eta, self.bsdf.eta, -cos_i, -wm)
+        // m along the sampled normal, |m|^2 = l: Fresnel's choice is a ratio
+        // of forms of one degree in cos theta and cos theta_t, so it needs
+        // them only scaled by |m| (no normalisation waits on a square root);
+        // the directions need 1 / l, computed alongside
+        let m = self.bsdf.mf.sample_wm_cap_scaled(self.wh, self.s_o, u);
+        let l = m.length_squared();
+        let inv_l = 1.0 / l;
+        // |m| cos theta_i, with eta = n_wall / n_air relative to the side wo comes from
+        let cm = wo.dot(m);
+        let (eta, inv_eta, c) = if cm < 0.0 {
+            (self.inv_eta, self.bsdf.eta, -cm)
         } else {
-            (self.bsdf.eta, self.inv_eta, cos_i, wm)
+            (self.bsdf.eta, self.inv_eta, cm)
         };
-        let sin2_t = (1.0 - c * c).max(0.0) * (inv_eta * inv_eta);
-        let refracted = if sin2_t >= 1.0 {
+        // |m|^2 sin^2 theta_t; total internal reflection where it reaches |m|^2
+        let sin2_t = (l - c * c).max(0.0) * (inv_eta * inv_eta);
+        let refracted = if sin2_t >= l {
             None
         } else {
-            let cos_t = (1.0 - sin2_t).sqrt();
+            // |m| cos theta_t
+            let cos_t = (l - sin2_t).sqrt();
             // uc >= F = (r_parl^2 + r_perp^2) / 2, with r_parl = a / A and
             // r_perp = b / B, compared without a division
             let (a, aa) = (eta * c - cos_t, eta * c + cos_t);
             let (b, bb) = (c - eta * cos_t, c + eta * cos_t);
             let (a2, aa2, b2, bb2) = (a * a, aa * aa, b * b, bb * bb);
+            // (refract: n = m / |m| on wo's side)
             (2.0 * uc * aa2 * bb2 >= a2 * bb2 + b2 * aa2)
-                .then(|| -wo * inv_eta + (c * inv_eta - cos_t) * n)
+                .then(|| -wo * inv_eta + ((c * inv_eta - cos_t) * inv_l * cm.signum()) * m)
         };
         let wi = match refracted {
             Some(wt) if wt.z * wo.z < 0.0 => wt,
             Some(_) => return None,
             None => {
-                let wr = reflect(wo, wm);
+                let wr = -wo + (2.0 * cm * inv_l) * m;
                 if wr.z * wo.z <= 0.0 {
                     return None;
                 }
                 wr
             }
         };
-        // kept with probability G / G1 = (1 + k_o) / (k_o + k_i), k_i =
-        // 1 + 2 Lambda(wi) = s / |cos theta_i|: compared without a division
+        // kept with probability G / G1 = (1 + k_o) / (k_o + k_i), k = 1 +
+        // 2 Lambda = s / |cos theta|: u (s_o z_i + s_i z_o) < (z_o + s_o) z_i,
+        // i.e. u s_i z_o < z_i (z_o + s_o (1 - u)), both sides >= 0, squared
+        // (no division, no square root)
         let zi = wi.z.abs();
-        let s = (zi * zi + a * a * (1.0 - zi * zi).max(0.0)).sqrt();
-        (u_keep * (self.k_o * zi + s) < (1.0 + self.k_o) * zi).then_some(wi)
+        let s2 = zi * zi + a * a * (1.0 - zi * zi).max(0.0);
+        let lhs = u_keep * self.z_o;
+        let rhs = zi * (self.z_o + self.s_o * (1.0 - u_keep));
+        (lhs * lhs * s2 < rhs * rhs).then_some(wi)
     }
 }
 
