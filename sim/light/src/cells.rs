@@ -123,6 +123,8 @@ impl GridWalk {
     fn new(q: Vec3, c: [usize; 3], d: Vec3, g: f32) -> GridWalk {
         let cell = c.map(|c| c as i32);
         let (dv, qv) = ([d.x, d.y, d.z], [q.x, q.y, q.z]);
+        // one (vector) division for the three axes
+        let inv = (Vec3::ONE / d).to_array();
         GridWalk {
             cell,
             tile: [0; 3],
@@ -130,14 +132,14 @@ impl GridWalk {
             t_next: std::array::from_fn(|a| {
                 let wall = (cell[a] + (dv[a] > 0.0) as i32) as f32 * g;
                 if dv[a] != 0.0 {
-                    (wall - qv[a]) / dv[a]
+                    (wall - qv[a]) * inv[a]
                 } else {
                     f32::INFINITY
                 }
             }),
             t_delta: std::array::from_fn(|a| {
                 if dv[a] != 0.0 {
-                    g / dv[a].abs()
+                    g * inv[a].abs()
                 } else {
                     f32::INFINITY
                 }
@@ -462,7 +464,7 @@ impl Cells {
             let (m, j) = S::first_min(best);
             if m <= nearest {
                 if m < nearest || j != hit.1 {
-                    hit = (which[j] as usize, j, shift);
+                    hit = (which[j] as i32 as usize, j, shift);
                 }
                 nearest = m;
             }

@@ -136,7 +136,7 @@ impl Scan for Portable {
         }
         let m = fold(far, |a, b| if a > b { a } else { b });
         let j = (0..LANES).position(|j| far[j] == m).unwrap_or(0);
-        (m > s).then_some((m, which[j] as usize, j))
+        (m > s).then_some((m, which[j] as i32 as usize, j))
     }
 
     #[inline(always)]
@@ -310,7 +310,7 @@ mod avx2 {
                 let (m, j) = first_of(far, _mm256_max_ps);
                 // lane j of which, without a trip through memory
                 let w = _mm256_permutevar8x32_ps(which, _mm256_set1_epi32(j as i32));
-                (m > s).then_some((m, _mm256_cvtss_f32(w) as usize, j))
+                (m > s).then_some((m, _mm256_cvtss_f32(w) as i32 as usize, j))
             }
         }
 
