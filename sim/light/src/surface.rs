@@ -315,6 +315,10 @@ impl HeightField {
             }
             return None;
         }
+        // (most flights stay below the relief: no call)
+        if o.z.max(o.z + d.z * t_max) < self.h_min {
+            return None;
+        }
         self.crossing_from_below_relief(o, d, t_max)
     }
 
