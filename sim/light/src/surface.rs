@@ -324,11 +324,9 @@ impl HeightField {
 
     #[inline(never)]
     fn crossing_from_below_relief(&self, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, Vec3)> {
+        // (the caller has tested the segment's top against h_min)
         let z1 = o.z + d.z * t_max;
         let z_top = o.z.max(z1);
-        if z_top < self.h_min {
-            return None;
-        }
         let (x1, y1) = (o.x + d.x * t_max, o.y + d.y * t_max);
         if z_top < self.min_over(o.x.min(x1), o.x.max(x1), o.y.min(y1), o.y.max(y1)) {
             return None;
