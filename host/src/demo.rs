@@ -443,13 +443,14 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
             // texture synthesis grows one point at a time, on one core. Each
             // lighting then redoes only its irradiance.
             let t = Instant::now();
-            let first = |object: &str| -> Result<(Scene, Prepared)> {
+            type Lit = [(&'static str, Vec<Light>, Option<EnvMap>); 3];
+            let first = |object: &str| -> Result<(Scene, Lit, Prepared)> {
                 let mut scene = Scene::builtin(object)?;
-                let [(_, lights, env), ..] = lightings(&scene);
-                light(&mut scene, lights, env);
+                let lit = lightings(&scene);
+                light(&mut scene, lit[0].1.clone(), lit[0].2.clone());
                 let stats = &mut RenderStats::default();
                 let prepared = prepare(&scene, &model, &settings, stats)?;
-                Ok((scene, prepared))
+                Ok((scene, lit, prepared))
             };
             let (teapot, bread) = rayon::join(|| first("teapot"), || first("bread"));
             b.println(&format!(
@@ -457,8 +458,8 @@ pub fn run(opts: &DemoOptions) -> Result<DemoSummary> {
                 t.elapsed().as_secs_f64()
             ));
             for (object, first) in [("teapot", teapot), ("bread", bread)] {
-                let (mut scene, mut prep) = first?;
-                for (k, (light_name, lights, env)) in lightings(&scene).into_iter().enumerate() {
+                let (mut scene, lit, mut prep) = first?;
+                for (k, (light_name, lights, env)) in lit.into_iter().enumerate() {
                     let t = Instant::now();
                     if k > 0 {
                         light(&mut scene, lights, env);

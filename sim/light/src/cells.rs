@@ -137,13 +137,8 @@ impl GridWalk {
                     f32::INFINITY
                 }
             }),
-            t_delta: std::array::from_fn(|a| {
-                if dv[a] != 0.0 {
-                    g * inv[a].abs()
-                } else {
-                    f32::INFINITY
-                }
-            }),
+            // (inf along a grid plane: 1 / 0 is inf)
+            t_delta: std::array::from_fn(|a| g * inv[a].abs()),
         }
     }
 
