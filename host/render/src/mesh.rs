@@ -302,6 +302,33 @@ impl Mesh {
         }
     }
 
+    /// Which side of the winding the outside lies on: +1 (normals point
+    /// out) or -1 for a closed mesh, every edge (of welded vertices) in
+    /// exactly two faces, once each way; None for an open one, whose
+    /// surface light may reach from either side. From inside a closed
+    /// surface every ray meets it again, so light arrives from outside only.
+    pub fn outside(&self) -> Option<f32> {
+        let mut directed: HashMap<(u32, u32), u32> =
+            HashMap::with_capacity(3 * self.triangles.len());
+        for t in &self.triangles {
+            let w = t.map(|i| self.weld[i as usize]);
+            for k in 0..3 {
+                *directed.entry((w[k], w[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        let closed = directed
+            .iter()
+            .all(|(&(a, b), &c)| c == 1 && directed.get(&(b, a)) == Some(&1));
+        // Six times the enclosed volume, signed by the winding.
+        let volume: f64 = (0..self.triangles.len())
+            .map(|t| {
+                let [a, b, c] = self.corners(t).map(|p| p.as_dvec3());
+                a.dot(b.cross(c))
+            })
+            .sum();
+        (closed && volume != 0.0).then(|| volume.signum() as f32)
+    }
+
     /// Barycentrics (b1, b2) of the point of triangle `t`'s plane nearest
     /// to `p`.
     pub fn barycentric(&self, t: usize, p: Vec3) -> (f32, f32) {
@@ -564,6 +591,36 @@ mod tests {
         for &i in g.triangles.iter().flatten() {
             let (p, n) = (g.positions[i as usize], g.normals[i as usize]);
             assert!(n.dot((p - Vec3::Z * 10.0).normalize()) > 0.95, "{n} at {p}");
+        }
+    }
+
+    #[test]
+    fn closed_meshes_know_their_outside() {
+        // Split corners (a box's faces, the teapot's creases) weld shut.
+        assert_eq!(
+            Mesh::build(shared_corner_box(), None).unwrap().outside(),
+            Some(1.0)
+        );
+        for m in [
+            crate::builtin::sphere(10.0, 16, 8).unwrap(),
+            crate::builtin::slab(60.0, 10.0).unwrap(),
+            crate::builtin::teapot(12.0, 0.84).unwrap(),
+        ] {
+            assert_eq!(m.outside(), Some(1.0));
+        }
+        // Wound inside out, the outside is against the normals.
+        let mut inverted = shared_corner_box();
+        inverted.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        assert_eq!(Mesh::build(inverted, None).unwrap().outside(), Some(-1.0));
+        // A box without its lid, a lone quad, a face wound against its
+        // neighbours: light reaches both sides.
+        let mut open = shared_corner_box();
+        open.triangles.truncate(10);
+        let mut flipped = shared_corner_box();
+        flipped.triangles[0].swap(1, 2);
+        flipped.triangles[1].swap(1, 2);
+        for m in [open, quad(), flipped] {
+            assert_eq!(Mesh::build(m, None).unwrap().outside(), None);
         }
     }
 

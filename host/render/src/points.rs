@@ -317,6 +317,7 @@ pub fn compute_irradiance<M: Material>(
     seed: u64,
 ) {
     let env_set = env_directions(scene, env_samples, seed);
+    let outside = scene.mesh.outside();
     let SurfaceSamples {
         pos,
         normal,
@@ -330,7 +331,9 @@ pub fn compute_irradiance<M: Material>(
         .into_par_iter()
         .map(|i| {
             let t = tangent.get(i).copied().unwrap_or(Vec3::ZERO);
-            irradiance_at(scene, pos[i], normal[i], t, entrance, &env_set, eta)
+            irradiance_at(
+                scene, pos[i], normal[i], t, entrance, &env_set, eta, outside,
+            )
         })
         .collect();
     (*irradiance, *entry) = lit.into_iter().unzip();
@@ -362,9 +365,12 @@ pub fn env_directions(scene: &Scene, n: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
     out
 }
 
-/// Irradiance at one surface point (two-sided), attenuated by the entrance,
-/// and the luminance-weighted sum of the directions the light enters along
-/// (refracted at index `eta`); `env_set` from [`env_directions`].
+/// Irradiance at one surface point, attenuated by the entrance, and the
+/// luminance-weighted sum of the directions the light enters along
+/// (refracted at index `eta`); `env_set` from [`env_directions`]. Two-sided,
+/// unless `outside` ([`Mesh::outside`](crate::mesh::Mesh::outside)) says
+/// which side of the normal `n` light can come from.
+#[allow(clippy::too_many_arguments)]
 pub fn irradiance_at<M: Material>(
     scene: &Scene,
     p: Vec3,
@@ -373,12 +379,13 @@ pub fn irradiance_at<M: Material>(
     entrance: &Entrance<'_, M>,
     env_set: &[(Vec3, Vec3)],
     eta: f32,
+    outside: Option<f32>,
 ) -> (Vec3, Vec3) {
     let mut e = Vec3::ZERO;
     let mut entry = Vec3::ZERO;
     let mut add = |wi: Vec3, dist: f32, radiance_term: Vec3| {
         let cos = n.dot(wi);
-        if cos.abs() < 1e-6 {
+        if cos.abs() < 1e-6 || outside.is_some_and(|s| cos * s < 0.0) {
             return;
         }
         let ns = if cos > 0.0 { n } else { -n };

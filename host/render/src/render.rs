@@ -33,7 +33,9 @@
 //! part alone), `lrf-dipole` (LRF + plain dipole without f and f_v) and
 //! `dipole-only` (plain dipole). Pixels are rendered in 16 x 16 tiles in
 //! parallel (rayon), with a progress bar; each pixel takes `spp` stratified
-//! jittered samples.
+//! jittered samples. The dipole sum is smooth at the scale of the surface
+//! samples' spacing, so where pixels are finer than that it is summed on a
+//! grid every other pixel and interpolated ([`GlobalGrid`]).
 
 use std::f32::consts::PI;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -163,6 +165,10 @@ where
             if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
                 return (x0, y0, out, qs, queries);
             }
+            let mut grid = (settings.mode.has_global() && !prep.tree.is_empty()).then(|| {
+                let size = ((x0 + TILE).min(w) - x0, (y0 + TILE).min(h) - y0);
+                GlobalGrid::new(scene, size, |gx, gy| camera(x0 as f32 + gx, y0 as f32 + gy))
+            });
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
                     let mut rng = Pcg64Mcg::seed_from_u64(
@@ -182,6 +188,8 @@ where
                                 settings,
                                 prep,
                                 &ray,
+                                (px - x0 as f32, py - y0 as f32),
+                                grid.as_mut(),
                                 &mut rng,
                                 &mut cache,
                                 &mut qs,
@@ -219,30 +227,22 @@ fn radiance<M: Material>(
     settings: &RenderSettings,
     prep: &Prepared,
     ray: &Ray,
+    film: (f32, f32),
+    grid: Option<&mut GlobalGrid>,
     rng: &mut Pcg64Mcg,
     cache: &mut Option<(Vec3, Vec3)>,
     qs: &mut QueryStats,
     queries: &mut u64,
 ) -> Vec3 {
-    let Some(hit) = scene.bvh.intersect(ray, f32::INFINITY) else {
+    let Some(at) = SurfaceHit::first(scene, ray) else {
         return match (&scene.env, scene.env_visible) {
             (Some(env), true) => env.radiance(ray.d),
             _ => Vec3::ZERO,
         };
     };
     let mesh = &scene.mesh;
-    let t = hit.tri as usize;
-    let p = ray.o + ray.d * hit.t;
-    let wo = -ray.d;
-    // Two-sided: the surface faces the viewer.
-    let mut ng = mesh.face_normal(t);
-    let mut ns = mesh.shading_normal(t, hit.b1, hit.b2);
-    // The dipole's geometry factor takes the normals in the mesh's winding.
-    let n_winding = ns;
-    if ng.dot(wo) < 0.0 {
-        ng = -ng;
-        ns = -ns;
-    }
+    let SurfaceHit { p, wo, ng, ns, .. } = at;
+    let (t, hit) = (at.tri, at.hit);
     let fr = frame(ns, prep.field.at(mesh, t, hit.b1, hit.b2));
     let mut wo_l = to_local(&fr, wo);
     wo_l.z = wo_l.z.max(1e-3);
@@ -284,38 +284,23 @@ fn radiance<M: Material>(
 
     // Global term: the hierarchical dipole sum, modulated on exit.
     if settings.mode.has_global() && !prep.tree.is_empty() {
-        // Within a pixel the dipole sum is smooth: samples that land within
-        // a surface-sample radius of the previous query reuse its value.
-        let r2 = prep.samples.radius * prep.samples.radius;
-        let m = match *cache {
-            Some((q, m)) if q.distance_squared(p) < r2 => m,
-            _ => {
-                // The diffusion (P1) radiance inside, refracted out towards
-                // w_o: the flux along the view's tangent u adds
-                // 3 s' M_u / (2A + 3 c') to the normal flux M_n, s' = sin θ_o / η.
-                // (The cache above serves one pixel, so one view.)
-                let (u, k) = if prep.geometry {
-                    let t = wo - ns * wo.dot(ns);
-                    let s = (t.length() / prep.eta as f32).min(1.0);
-                    let c = (1.0 - s * s).sqrt();
-                    let a = qhm_model::dipole::boundary_a(prep.eta) as f32;
-                    (t.normalize_or_zero(), 3.0 * s / (2.0 * a + 3.0 * c))
-                } else {
-                    (Vec3::ZERO, 0.0)
-                };
-                let (mn, mu) = prep.tree.query_flux(
-                    p,
-                    n_winding,
-                    u,
-                    &prep.rd,
-                    settings.epsilon,
-                    settings.local_radius_mm,
-                    qs,
-                );
-                let m = (mn + mu * k).max(Vec3::ZERO);
-                *queries += 1;
-                *cache = Some((p, m));
-                m
+        let interpolated = grid.and_then(|g| g.interpolate(film, &at, settings, prep, qs, queries));
+        let m = match interpolated {
+            Some(m) => m,
+            None => {
+                // Within a pixel the dipole sum is smooth: samples that land
+                // within a surface-sample radius of the previous query reuse
+                // its value.
+                let r2 = prep.samples.radius * prep.samples.radius;
+                match *cache {
+                    Some((q, m)) if q.distance_squared(p) < r2 => m,
+                    _ => {
+                        let m = global_exitance(settings, prep, &at, qs);
+                        *queries += 1;
+                        *cache = Some((p, m));
+                        m
+                    }
+                }
             }
         };
         let exit = if settings.mode.plain_dipole() {
@@ -339,4 +324,273 @@ fn radiance<M: Material>(
     }
     // Negative sums (the LRF is a difference of images) are clamped here.
     l.max(Vec3::ZERO)
+}
+
+/// Where a camera ray first meets the object, its normals two-sided.
+struct SurfaceHit {
+    tri: usize,
+    hit: crate::bvh::Hit,
+    p: Vec3,
+    wo: Vec3,
+    /// Face and shading normals, turned towards the viewer.
+    ng: Vec3,
+    ns: Vec3,
+    /// The shading normal in the mesh's winding (the dipole's geometry
+    /// factor takes that one).
+    n_winding: Vec3,
+}
+
+impl SurfaceHit {
+    fn first(scene: &Scene, ray: &Ray) -> Option<SurfaceHit> {
+        let hit = scene.bvh.intersect(ray, f32::INFINITY)?;
+        let tri = hit.tri as usize;
+        let wo = -ray.d;
+        let mut ng = scene.mesh.face_normal(tri);
+        let mut ns = scene.mesh.shading_normal(tri, hit.b1, hit.b2);
+        let n_winding = ns;
+        if ng.dot(wo) < 0.0 {
+            ng = -ng;
+            ns = -ns;
+        }
+        Some(SurfaceHit {
+            tri,
+            p: ray.o + ray.d * hit.t,
+            hit,
+            wo,
+            ng,
+            ns,
+            n_winding,
+        })
+    }
+}
+
+/// The global term's exitance M at `at` (before f_v and 1/pi): the
+/// hierarchical dipole sum, with the diffusion (P1) radiance inside
+/// refracted out towards w_o. The flux along the view's tangent u adds
+/// 3 s' M_u / (2A + 3 c') to the normal flux M_n, s' = sin θ_o / η.
+fn global_exitance(
+    settings: &RenderSettings,
+    prep: &Prepared,
+    at: &SurfaceHit,
+    qs: &mut QueryStats,
+) -> Vec3 {
+    let (u, k) = if prep.geometry {
+        let t = at.wo - at.ns * at.wo.dot(at.ns);
+        let s = (t.length() / prep.eta as f32).min(1.0);
+        let c = (1.0 - s * s).sqrt();
+        let a = qhm_model::dipole::boundary_a(prep.eta) as f32;
+        (t.normalize_or_zero(), 3.0 * s / (2.0 * a + 3.0 * c))
+    } else {
+        (Vec3::ZERO, 0.0)
+    };
+    let (mn, mu) = prep.tree.query_flux(
+        at.p,
+        at.n_winding,
+        u,
+        &prep.rd,
+        settings.epsilon,
+        settings.local_radius_mm,
+        qs,
+    );
+    (mn + mu * k).max(Vec3::ZERO)
+}
+
+/// Pixels between corners of the global term's grid.
+const GRID_STEP: u32 = 2;
+
+/// How far a corner may lie from the point it serves, in surface sample
+/// radii.
+const GRID_REACH: f32 = 3.0;
+
+/// The global term on a grid over one tile, every [`GRID_STEP`] pixels:
+/// M is a sum of kernels at least a surface sample's radius wide, so
+/// within that radius it is smooth, and a camera sample whose four
+/// corners lie on the same surface close by takes M bilinearly from
+/// them. The corners' rays are traced up front; their M is summed when a
+/// camera sample first needs it, so a grid whose corners are too far
+/// apart (a small image) costs only those rays.
+struct GlobalGrid {
+    cols: usize,
+    nodes: Vec<Option<GridNode>>,
+}
+
+struct GridNode {
+    at: SurfaceHit,
+    m: Option<Vec3>,
+}
+
+impl GlobalGrid {
+    /// The grid over a tile `size` pixels wide and high; `camera(x, y)` is
+    /// the ray through the tile's film position (x, y).
+    fn new(scene: &Scene, size: (u32, u32), camera: impl Fn(f32, f32) -> Ray) -> GlobalGrid {
+        let cols = size.0.div_ceil(GRID_STEP) as usize + 1;
+        let rows = size.1.div_ceil(GRID_STEP) as usize + 1;
+        let nodes = (0..rows * cols)
+            .map(|k| {
+                let (i, j) = ((k % cols) as u32, (k / cols) as u32);
+                let ray = camera((i * GRID_STEP) as f32, (j * GRID_STEP) as f32);
+                SurfaceHit::first(scene, &ray).map(|at| GridNode { at, m: None })
+            })
+            .collect();
+        GlobalGrid { cols, nodes }
+    }
+
+    /// M at the tile's film position `film` for the surface point `at`,
+    /// bilinear in the cell's corners, or None where a corner misses the
+    /// object, lies [`GRID_REACH`] surface sample radii or more from `at`,
+    /// or turns its normal by more than ~25° (a silhouette, another part, a
+    /// crease).
+    fn interpolate(
+        &mut self,
+        film: (f32, f32),
+        at: &SurfaceHit,
+        settings: &RenderSettings,
+        prep: &Prepared,
+        qs: &mut QueryStats,
+        queries: &mut u64,
+    ) -> Option<Vec3> {
+        let (fx, fy) = (film.0 / GRID_STEP as f32, film.1 / GRID_STEP as f32);
+        let (i, j) = (fx as usize, fy as usize);
+        if i + 1 >= self.cols {
+            return None;
+        }
+        let corners = [
+            j * self.cols + i,
+            j * self.cols + i + 1,
+            (j + 1) * self.cols + i,
+            (j + 1) * self.cols + i + 1,
+        ];
+        let r2 = (GRID_REACH * prep.samples.radius).powi(2);
+        let mut c = [Vec3::ZERO; 4];
+        for (ck, &k) in c.iter_mut().zip(&corners) {
+            let node = self.nodes.get(k)?.as_ref()?;
+            if node.at.p.distance_squared(at.p) >= r2 || node.at.n_winding.dot(at.n_winding) < 0.9 {
+                return None;
+            }
+            *ck = node.at.p;
+        }
+        let (s, t) = bilinear_coordinates(c, at.p, (fx - i as f32, fy - j as f32));
+        let weights = [(1.0 - s) * (1.0 - t), s * (1.0 - t), (1.0 - s) * t, s * t];
+        let mut m = Vec3::ZERO;
+        for (k, w) in corners.into_iter().zip(weights) {
+            let node = self.nodes[k].as_mut()?;
+            let mk = *node.m.get_or_insert_with(|| {
+                *queries += 1;
+                global_exitance(settings, prep, &node.at, qs)
+            });
+            m += mk * w;
+        }
+        Some(m)
+    }
+}
+
+/// The coordinates (s, t) in [0, 1]² of the point of the bilinear patch
+/// through corners `c` (c00, c10, c01, c11) nearest to `p`, by Gauss-Newton
+/// from `guess`. M is smooth on the surface, not on the film: near a
+/// silhouette the film's coordinates crowd the surface's together, and
+/// weights taken from them bend M towards the edge.
+fn bilinear_coordinates(c: [Vec3; 4], p: Vec3, guess: (f32, f32)) -> (f32, f32) {
+    let (mut s, mut t) = guess;
+    for _ in 0..3 {
+        let at = |s: f32, t: f32| {
+            c[0] * ((1.0 - s) * (1.0 - t))
+                + c[1] * (s * (1.0 - t))
+                + c[2] * ((1.0 - s) * t)
+                + c[3] * (s * t)
+        };
+        let ds = (c[1] - c[0]) * (1.0 - t) + (c[3] - c[2]) * t;
+        let dt = (c[2] - c[0]) * (1.0 - s) + (c[3] - c[1]) * s;
+        let e = p - at(s, t);
+        let (a, b, d) = (ds.dot(ds), ds.dot(dt), dt.dot(dt));
+        let det = a * d - b * b;
+        if det.is_nan() || det <= 1e-12 * a * d {
+            break;
+        }
+        let (gs, gt) = (ds.dot(e), dt.dot(e));
+        s = (s + (d * gs - b * gt) / det).clamp(0.0, 1.0);
+        t = (t + (a * gt - b * gs) / det).clamp(0.0, 1.0);
+    }
+    (s, t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::materials::{Homogeneous, preset};
+
+    /// Over every tile of a lit teapot at 384 x 384, M from the grid against
+    /// M summed at each camera sample's own point: the bilinear weights are
+    /// within 0.4 % (RMS; measured 0.27 %) of it, where the nearest corner's
+    /// value alone is more than 2.5 times further off (0.88 %).
+    #[test]
+    fn the_global_grid_gives_the_sum_at_each_point() {
+        let scene = Scene::lit(crate::builtin::teapot(12.0, 0.84).unwrap());
+        let material = Homogeneous {
+            dipole: preset("marble").unwrap(),
+        };
+        let settings = RenderSettings {
+            width: 384,
+            height: 384,
+            surface_samples: 12_000,
+            ..RenderSettings::default()
+        };
+        let prep = prepare(&scene, &material, &settings, &mut RenderStats::default()).unwrap();
+        let (mut qs, mut queries) = (QueryStats::default(), 0);
+        let (mut rng, tile) = (Pcg64Mcg::seed_from_u64(3), TILE as f32);
+        let (mut err, mut nearest_err, mut norm, mut served) = (0.0f64, 0.0f64, 0.0f64, 0);
+        for (x0, y0) in
+            (0..384 / TILE).flat_map(|y| (0..384 / TILE).map(move |x| (x * TILE, y * TILE)))
+        {
+            let camera = |x: f32, y: f32| scene.camera.ray(x0 as f32 + x, y0 as f32 + y, 384, 384);
+            let mut grid = GlobalGrid::new(&scene, (TILE, TILE), camera);
+            for _ in 0..16 {
+                let film = (rng.random::<f32>() * tile, rng.random::<f32>() * tile);
+                let Some(at) = SurfaceHit::first(&scene, &camera(film.0, film.1)) else {
+                    continue;
+                };
+                let Some(m) = grid.interpolate(film, &at, &settings, &prep, &mut qs, &mut queries)
+                else {
+                    continue;
+                };
+                let exact = global_exitance(&settings, &prep, &at, &mut qs);
+                let (i, j) = (
+                    (film.0 / GRID_STEP as f32).round() as usize,
+                    (film.1 / GRID_STEP as f32).round() as usize,
+                );
+                let nearest = grid.nodes[j * grid.cols + i].as_ref().unwrap().m.unwrap();
+                let l = |v: Vec3| crate::light::luminance(v) as f64;
+                err += (l(m) - l(exact)).powi(2);
+                nearest_err += (l(nearest) - l(exact)).powi(2);
+                norm += l(exact).powi(2);
+                served += 1;
+            }
+        }
+        let (rms, nearest_rms) = ((err / norm).sqrt(), (nearest_err / norm).sqrt());
+        assert!(served > 400, "{served} samples taken from the grid");
+        assert!(rms < 0.004, "bilinear: relative RMS {rms}");
+        assert!(
+            nearest_rms > 2.5 * rms,
+            "nearest corner: {nearest_rms} against {rms}"
+        );
+    }
+
+    #[test]
+    fn bilinear_coordinates_find_a_point_of_a_skewed_patch() {
+        let c = [
+            Vec3::ZERO,
+            Vec3::new(1.0, 0.1, 0.0),
+            Vec3::new(0.2, 1.0, 0.1),
+            Vec3::new(1.3, 1.2, 0.3),
+        ];
+        let (s, t) = (0.3, 0.8);
+        let p = c[0] * ((1.0 - s) * (1.0 - t))
+            + c[1] * (s * (1.0 - t))
+            + c[2] * ((1.0 - s) * t)
+            + c[3] * (s * t);
+        let (a, b) = bilinear_coordinates(c, p, (0.5, 0.5));
+        assert!((a - s).abs() < 1e-4 && (b - t).abs() < 1e-4, "{a} {b}");
+        // A point off the patch lands on its nearest edge.
+        let (a, _) = bilinear_coordinates(c, p + Vec3::new(-5.0, 0.0, 0.0), (0.5, 0.5));
+        assert_eq!(a, 0.0);
+    }
 }
