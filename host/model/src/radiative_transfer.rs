@@ -98,16 +98,20 @@ struct Primitives {
     p_t: Vec<f64>,
 }
 
+/// Beyond this u, e^{-u} < 2.4e-16: G has reached its limit
+/// 1 / sqrt(1 + c²) to double precision, so the quadrature stops there.
+const DAMPED_REACH: f64 = 36.0;
+
 /// G(c, X) = ∫_0^X e^{-u} J0(c u) du at the sorted `xs`, cumulatively.
 fn damped_j0_primitive(c: f64, xs: impl Iterator<Item = f64>, out: &mut Vec<f64>) {
     let saturated = 1.0 / (1.0 + c * c).sqrt();
     let (mut x_prev, mut acc) = (0.0f64, 0.0f64);
     for x in xs {
-        if x_prev >= 60.0 {
+        if x_prev >= DAMPED_REACH {
             out.push(saturated);
             continue;
         }
-        let x_to = x.min(60.0);
+        let x_to = x.min(DAMPED_REACH);
         let len = x_to - x_prev;
         if len > 0.0 {
             let n = ((len * (1.0 + c)).ceil() as usize).clamp(1, 100_000);
@@ -121,7 +125,7 @@ fn damped_j0_primitive(c: f64, xs: impl Iterator<Item = f64>, out: &mut Vec<f64>
             }
         }
         x_prev = x_to;
-        out.push(if x >= 60.0 { saturated } else { acc });
+        out.push(if x >= DAMPED_REACH { saturated } else { acc });
     }
 }
 

@@ -76,19 +76,15 @@ impl RdTable {
         r_max += rho;
         let n = 4096;
         let dr = r_max / (n - 1) as f64;
-        // Midpoint rule on the disk: equal-area rings x half the angles
-        // (the integrand is symmetric about the line to the centre).
+        // The mean of g over a disk of radius rho centred at distance r, as
+        // an integral over the distance s from the origin: the circle of
+        // radius s lies inside the disk over an angle theta(s), so the mean
+        // is ∫ g(s) theta(s) s ds / (pi rho²). g(s) s stays finite where
+        // radiative transfer's single scattering makes g singular at 0, so a
+        // midpoint rule in s keeps ∫ R_d dA (a midpoint rule over the disk's
+        // area lost 5 % of skin1's blue at rho 0.4 mm, more at 1 mm).
         // Finer where the hole's edge cuts through the disk.
-        let (n_ring, n_ang) = if hole > 0.0 { (32, 32) } else { (12, 12) };
-        let disk: Vec<(f64, f64)> = (0..n_ring)
-            .flat_map(|i| {
-                let s = rho * ((i as f64 + 0.5) / n_ring as f64).sqrt();
-                (0..n_ang).map(move |j| {
-                    let phi = std::f64::consts::PI * (j as f64 + 0.5) / n_ang as f64;
-                    (s * phi.cos(), s * phi.sin())
-                })
-            })
-            .collect();
+        let n_s = if hole > 0.0 { 1024 } else { 128 };
         let values = (0..n)
             .into_par_iter()
             .map(|k| {
@@ -96,14 +92,24 @@ impl RdTable {
                 let v = if rho == 0.0 {
                     g(r)
                 } else {
+                    let (s0, s1) = ((r - rho).max(0.0), r + rho);
+                    let ds = (s1 - s0) / n_s as f64;
                     let mut acc = [0.0f64; 3];
-                    for &(dx, dy) in &disk {
-                        let v = g(((r - dx).powi(2) + dy * dy).sqrt());
+                    for i in 0..n_s {
+                        let s = s0 + (i as f64 + 0.5) * ds;
+                        let theta = if s + r <= rho {
+                            2.0 * std::f64::consts::PI
+                        } else {
+                            2.0 * ((s * s + r * r - rho * rho) / (2.0 * s * r))
+                                .clamp(-1.0, 1.0)
+                                .acos()
+                        };
+                        let v = g(s);
                         for c in 0..3 {
-                            acc[c] += v[c];
+                            acc[c] += v[c] * theta * s * ds;
                         }
                     }
-                    acc.map(|a| a / disk.len() as f64)
+                    acc.map(|a| a / (std::f64::consts::PI * rho * rho))
                 };
                 Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32)
             })
@@ -1065,6 +1071,42 @@ mod tests {
         }
         // Near the centre it is below the sharp peak of the point value.
         assert!(t.eval(0.0).x < p.rd(0.0)[0] as f32);
+    }
+
+    /// Radiative transfer's R_d is singular at 0 (single scattering): the
+    /// disk mean must still keep its integral, where most of a low albedo's
+    /// reflectance lies within a sample's disk (skin1's blue, a' 0.68).
+    #[test]
+    fn disk_mean_of_the_transport_profile_keeps_the_integral() {
+        let mut p = crate::materials::preset("skin1").unwrap();
+        p.model = qhm_model::ProfileModel::Transport;
+        let integral = |t: &RdTable| {
+            let n = 100_000;
+            let dr = t.r_max / n as f32;
+            (0..n).fold(Vec3::ZERO, |acc, k| {
+                let r = (k as f32 + 0.5) * dr;
+                acc + t.eval(r) * (2.0 * std::f32::consts::PI * r * dr)
+            })
+        };
+        for rho in [0.1, 0.4, 1.0] {
+            let sum = integral(&RdTable::new(&p, rho));
+            for c in 0..3 {
+                let total = p.subsurface().total(c) as f32;
+                assert!(
+                    (sum[c] - total).abs() < 0.005 * total,
+                    "rho {rho}, {c}: {} vs {total}",
+                    sum[c]
+                );
+            }
+        }
+        // The point values, interpolated between the table's nodes, are not
+        // the profile's integral near its singular core: the check sees it.
+        let point = integral(&RdTable::new(&p, 0.0));
+        assert!(
+            point.z > 1.03 * p.subsurface().total(2) as f32,
+            "{}",
+            point.z
+        );
     }
 
     #[test]
