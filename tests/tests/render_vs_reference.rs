@@ -26,7 +26,7 @@
 
 use std::path::PathBuf;
 
-use qhm_model::{DipoleParams, MaterialModel};
+use qhm_model::{DipoleParams, MaterialModel, ProfileModel};
 use qhm_render::Material;
 use qhm_render::materials::preset;
 use qhm_render::{Image, Mesh, RenderSettings, Scene, SceneFile, render_scene};
@@ -315,6 +315,36 @@ fn apple_teapot_back_lit_matches_sim_light() {
     check_teapot("teapot-apple-back", 0.11, 0.14);
 }
 
+/// skin1 (a' 0.96, 0.84, 0.68) lit from the front: the preset renders with
+/// radiative transfer's R_d, and the paper's dipole, bright by 6-12 % in
+/// green and blue at these albedos, fails the same bounds.
+#[test]
+fn skin1_sphere_front_lit_needs_radiative_transfer() {
+    let c = load("skin1-front");
+    let params = preset(&c.material).unwrap();
+    assert_eq!(params.model, ProfileModel::Transport);
+    let (mean, term, blocks) = (0.045, 0.12, 0.03);
+    let now = metrics(&c, &render(&c, &MaterialModel::homogeneous(params), false));
+    eprintln!(
+        "skin1-front: mean {:.3?} terminator {:.3?} blocks {:.3?}",
+        now.mean, now.terminator, now.block_rmse
+    );
+    within(&now, &[0, 1, 2], mean, term, blocks).unwrap_or_else(|e| panic!("skin1-front: {e}"));
+    let dipole = DipoleParams {
+        model: ProfileModel::Dipole,
+        ..params
+    };
+    let old = metrics(&c, &render(&c, &MaterialModel::homogeneous(dipole), false));
+    eprintln!(
+        "skin1-front, dipole: mean {:.3?} terminator {:.3?} blocks {:.3?}",
+        old.mean, old.terminator, old.block_rmse
+    );
+    assert!(
+        within(&old, &[0, 1, 2], mean, term, blocks).is_err(),
+        "skin1-front: the dipole passes too"
+    );
+}
+
 #[test]
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
     check("skin1-side", &[0, 1, 2], 0.1, 0.17, 0.12);
@@ -327,13 +357,14 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 #[ignore]
 fn every_cached_case_at_default_quality() {
     let cases: [(&str, &[usize], f64, f64, f64); 6] = [
-        ("skin1-front", &[0, 1, 2], 0.13, 0.07, 0.16),
-        ("skin1-side", &[0, 1, 2], 0.12, 0.18, 0.11),
-        ("skin1-back", &[0, 1, 2], 0.28, 0.3, f64::INFINITY),
-        ("skin1-env", &[0, 1, 2], 0.2, 1.0, 0.22),
+        ("skin1-front", &[0, 1, 2], 0.04, 0.11, 0.02),
+        ("skin1-side", &[0, 1, 2], 0.06, 0.11, 0.1),
+        ("skin1-back", &[0, 1, 2], 0.25, 0.27, f64::INFINITY),
+        ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
         ("apple-front", &[0, 1, 2], 0.05, 0.14, 0.04),
         ("apple-back", &[0, 1], 0.1, 0.13, 0.16),
     ];
+    let mut failed = Vec::new();
     for (case, channels, mean, term, blocks) in cases {
         let mut c = load(case);
         c.toml = c
@@ -345,6 +376,9 @@ fn every_cached_case_at_default_quality() {
             "{case}: mean {:.3?} terminator {:.3?} blocks {:.3?}",
             m.mean, m.terminator, m.block_rmse
         );
-        within(&m, channels, mean, term, blocks).unwrap_or_else(|e| panic!("{case}: {e}"));
+        if let Err(e) = within(&m, channels, mean, term, blocks) {
+            failed.push(format!("{case}: {e}"));
+        }
     }
+    assert!(failed.is_empty(), "{}", failed.join("; "));
 }

@@ -1205,7 +1205,7 @@ mod tests {
             }
         }
         for c in 0..3 {
-            let r_total = p.channel(c).total() as f32;
+            let r_total = p.subsurface().total(c) as f32;
             assert!(
                 (total[c] - r_total).abs() < 0.03 * r_total,
                 "{c}: {total} vs {r_total}"
