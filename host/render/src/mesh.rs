@@ -304,9 +304,11 @@ impl Mesh {
 
     /// Which side of the winding the outside lies on: +1 (normals point
     /// out) or -1 for a closed mesh, every edge (of welded vertices) in
-    /// exactly two faces, once each way; None for an open one, whose
-    /// surface light may reach from either side. From inside a closed
-    /// surface every ray meets it again, so light arrives from outside only.
+    /// exactly two faces, once each way, whose shells all enclose their
+    /// volume the same way round; None otherwise (an open surface, or shells
+    /// wound differently, as a hollow part's inner wall is), and light may
+    /// reach the surface from either side. From inside a closed surface
+    /// every ray meets it again, so light arrives from outside only.
     pub fn outside(&self) -> Option<f32> {
         let mut directed: HashMap<(u32, u32), u32> =
             HashMap::with_capacity(3 * self.triangles.len());
@@ -319,14 +321,37 @@ impl Mesh {
         let closed = directed
             .iter()
             .all(|(&(a, b), &c)| c == 1 && directed.get(&(b, a)) == Some(&1));
-        // Six times the enclosed volume, signed by the winding.
-        let volume: f64 = (0..self.triangles.len())
-            .map(|t| {
-                let [a, b, c] = self.corners(t).map(|p| p.as_dvec3());
-                a.dot(b.cross(c))
-            })
-            .sum();
-        (closed && volume != 0.0).then(|| volume.signum() as f32)
+        if !closed {
+            return None;
+        }
+        // Shells: faces joined through their welded corners (union-find).
+        let mut parent: Vec<u32> = (0..self.positions.len() as u32).collect();
+        fn root(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                parent[i as usize] = parent[parent[i as usize] as usize];
+                i = parent[i as usize];
+            }
+            i
+        }
+        for t in &self.triangles {
+            let w = t.map(|i| self.weld[i as usize]);
+            for k in 1..3 {
+                let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[k]));
+                parent[a as usize] = b;
+            }
+        }
+        // Six times each shell's enclosed volume, signed by the winding.
+        let mut volume: HashMap<u32, f64> = HashMap::new();
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let [a, b, c] = self.corners(t).map(|p| p.as_dvec3());
+            let shell = root(&mut parent, self.weld[tri[0] as usize]);
+            *volume.entry(shell).or_default() += a.dot(b.cross(c));
+        }
+        let sign = volume.values().next()?.signum();
+        volume
+            .values()
+            .all(|v| *v != 0.0 && v.signum() == sign)
+            .then_some(sign as f32)
     }
 
     /// Barycentrics (b1, b2) of the point of triangle `t`'s plane nearest
@@ -622,6 +647,24 @@ mod tests {
         for m in [open, quad(), flipped] {
             assert_eq!(Mesh::build(m, None).unwrap().outside(), None);
         }
+        // Two boxes apart: both wound outwards, or one inside out.
+        let two = |invert: bool| {
+            let mut m = shared_corner_box();
+            let mut other = shared_corner_box();
+            for p in &mut other.positions {
+                p[0] += 3.0;
+            }
+            if invert {
+                other.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+            }
+            let base = m.positions.len() as u32;
+            m.positions.extend(other.positions);
+            m.triangles
+                .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
+            Mesh::build(m, None).unwrap().outside()
+        };
+        assert_eq!(two(false), Some(1.0));
+        assert_eq!(two(true), None);
     }
 
     #[test]
