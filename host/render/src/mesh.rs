@@ -629,7 +629,7 @@ mod tests {
         for m in [
             crate::builtin::sphere(10.0, 16, 8).unwrap(),
             crate::builtin::slab(60.0, 10.0).unwrap(),
-            crate::builtin::teapot(12.0, 0.84).unwrap(),
+            crate::builtin::teapot(12.0, crate::builtin::TEAPOT_CELL).unwrap(),
         ] {
             assert_eq!(m.outside(), Some(1.0));
         }

@@ -489,11 +489,11 @@ mod tests {
 
     /// Over every tile of a lit teapot at 384 x 384, M from the grid against
     /// M summed at each camera sample's own point: the bilinear weights are
-    /// within 0.4 % (RMS; measured 0.28 %) of it, where the nearest corner's
-    /// value alone is more than 2.5 times further off (0.88 %).
+    /// within 0.6 % (RMS; measured 0.47 %) of it, where the nearest corner's
+    /// value alone is more than 2.5 times further off (1.85 %).
     #[test]
     fn the_global_grid_gives_the_sum_at_each_point() {
-        let scene = Scene::lit(crate::builtin::teapot(12.0, 0.84).unwrap());
+        let scene = Scene::lit(crate::builtin::teapot(12.0, crate::builtin::TEAPOT_CELL).unwrap());
         let material = Homogeneous {
             dipole: preset("marble").unwrap(),
         };
@@ -536,7 +536,7 @@ mod tests {
         }
         let (rms, nearest_rms) = ((err / norm).sqrt(), (nearest_err / norm).sqrt());
         assert!(served > 400, "{served} samples taken from the grid");
-        assert!(rms < 0.004, "bilinear: relative RMS {rms}");
+        assert!(rms < 0.006, "bilinear: relative RMS {rms}");
         assert!(
             nearest_rms > 2.5 * rms,
             "nearest corner: {nearest_rms} against {rms}"
