@@ -317,7 +317,6 @@ pub fn compute_irradiance<M: Material>(
     seed: u64,
 ) {
     let env_set = env_directions(scene, env_samples, seed);
-    let outside = scene.mesh.outside();
     let SurfaceSamples {
         pos,
         normal,
@@ -331,9 +330,7 @@ pub fn compute_irradiance<M: Material>(
         .into_par_iter()
         .map(|i| {
             let t = tangent.get(i).copied().unwrap_or(Vec3::ZERO);
-            irradiance_at(
-                scene, pos[i], normal[i], t, entrance, &env_set, eta, outside,
-            )
+            irradiance_at(scene, pos[i], normal[i], t, entrance, &env_set, eta)
         })
         .collect();
     (*irradiance, *entry) = lit.into_iter().unzip();
@@ -368,9 +365,8 @@ pub fn env_directions(scene: &Scene, n: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
 /// Irradiance at one surface point, attenuated by the entrance, and the
 /// luminance-weighted sum of the directions the light enters along
 /// (refracted at index `eta`); `env_set` from [`env_directions`]. Two-sided,
-/// unless `outside` ([`Mesh::outside`](crate::mesh::Mesh::outside)) says
-/// which side of the normal `n` light can come from.
-#[allow(clippy::too_many_arguments)]
+/// unless the scene's mesh is closed ([`Scene::outside`]): then light comes
+/// from its outside only.
 pub fn irradiance_at<M: Material>(
     scene: &Scene,
     p: Vec3,
@@ -379,13 +375,12 @@ pub fn irradiance_at<M: Material>(
     entrance: &Entrance<'_, M>,
     env_set: &[(Vec3, Vec3)],
     eta: f32,
-    outside: Option<f32>,
 ) -> (Vec3, Vec3) {
     let mut e = Vec3::ZERO;
     let mut entry = Vec3::ZERO;
     let mut add = |wi: Vec3, dist: f32, radiance_term: Vec3| {
         let cos = n.dot(wi);
-        if cos.abs() < 1e-6 || outside.is_some_and(|s| cos * s < 0.0) {
+        if cos.abs() < 1e-6 || scene.outside.is_some_and(|s| cos * s < 0.0) {
             return;
         }
         let ns = if cos > 0.0 { n } else { -n };

@@ -65,6 +65,9 @@ use crate::settings::{Mode, RenderSettings};
 pub struct Scene {
     pub mesh: Mesh,
     pub bvh: Bvh,
+    /// The mesh's [`Mesh::outside`], found with the BVH when the scene is
+    /// made: the side light can reach its surface from.
+    pub outside: Option<f32>,
     pub camera: Camera,
     pub lights: Vec<Light>,
     pub env: Option<EnvMap>,
@@ -81,9 +84,11 @@ impl Scene {
         let diag = (hi - lo).length();
         let camera = frame_camera(lo, hi);
         let bvh = Bvh::new(&mesh);
+        let outside = mesh.outside();
         Scene {
             mesh,
             bvh,
+            outside,
             camera,
             lights: Vec::new(),
             env: None,
