@@ -1,5 +1,5 @@
 //! qhm's homogeneous renders against exact light transport: a 20 mm
-//! radius sphere of the skin1 and apple presets, lit from the front, the
+//! radius sphere of the skin1, apple, marble and ketchup presets, lit from the front, the
 //! side and behind by a small sun (8° disk) and by an environment map,
 //! against Mitsuba 3's volumetric path tracer on the presets' exported
 //! medium in its dielectric boundary (`volpathmis`, scalar_rgb, 2 x 512
@@ -243,7 +243,14 @@ fn check(case: &str, channels: &[usize], mean: f64, term: f64, blocks: f64) {
 
 #[test]
 fn apple_sphere_front_lit_matches_the_path_tracer() {
-    check("apple-front", &[0, 1, 2], 0.055, 0.12, 0.045);
+    check("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03);
+}
+
+#[test]
+fn marble_sphere_front_lit_matches_the_path_tracer() {
+    // The convex surface's gain over a plane (the curvature of the
+    // geometry factor): without it marble was 4.5 % dark.
+    check("marble-front", &[0, 1, 2], 0.03, 0.1, 0.04);
 }
 
 #[test]
@@ -307,12 +314,12 @@ fn check_teapot(case: &str, mean: f64, blocks: f64) {
 
 #[test]
 fn apple_teapot_front_lit_matches_sim_light() {
-    check_teapot("teapot-apple-front", 0.06, 0.07);
+    check_teapot("teapot-apple-front", 0.03, 0.04);
 }
 
 #[test]
 fn apple_teapot_back_lit_matches_sim_light() {
-    check_teapot("teapot-apple-back", 0.11, 0.14);
+    check_teapot("teapot-apple-back", 0.06, 0.08);
 }
 
 /// A preset that renders with radiative transfer's R_d passes the bounds,
@@ -370,13 +377,14 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 #[test]
 #[ignore]
 fn every_cached_case_at_default_quality() {
-    let cases: [(&str, &[usize], f64, f64, f64); 8] = [
+    let cases: [(&str, &[usize], f64, f64, f64); 9] = [
         ("skin1-front", &[0, 1, 2], 0.04, 0.11, 0.02),
         ("skin1-side", &[0, 1, 2], 0.06, 0.11, 0.1),
         ("skin1-back", &[0, 1, 2], 0.25, 0.27, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
-        ("apple-front", &[0, 1, 2], 0.05, 0.14, 0.04),
+        ("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("apple-back", &[0, 1], 0.1, 0.13, 0.16),
+        ("marble-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05),
         ("ketchup-back", &[0], 0.08, f64::INFINITY, 0.1),
     ];

@@ -23,6 +23,7 @@ pub mod builtin;
 pub mod bvh;
 pub mod camera;
 pub mod compare;
+pub mod curvature;
 pub mod distrib;
 mod error;
 pub mod export;
