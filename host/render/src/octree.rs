@@ -346,6 +346,11 @@ impl RdTable {
     /// lie next to x_o). Parts thicker than the images' reach
     /// ([`DipoleLanes::image_reach`]) are half-spaces.
     ///
+    /// Where x_o's plane faces x_i's (n_o · n_i above 0.25) the pair is
+    /// laid flat on x_i's tangent plane and the curvature between the two
+    /// takes the gain of diffusion theory in a sphere instead
+    /// ([`crate::curvature`]), for the channels whose albedo it holds at.
+    ///
     /// G_u is the flux through x_o along the unit tangent `u` over the
     /// planar normal flux, u · (f_r (x_o - s_r) - f_v (x_o - s_v)) / Φ_plane
     /// with f = (s_tr d + 1) e^{-s_tr d} / d³ (see

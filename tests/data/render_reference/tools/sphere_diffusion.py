@@ -1,13 +1,14 @@
-"""sphere_diffusion.py PRESET [RADIUS_MM] : diffusion theory's exitance at a sphere's point against a plane's.
+"""sphere_diffusion.py PRESET [RADIUS_MM [LIGHT_DEG]] : diffusion theory's exitance at a sphere's point against a plane's.
 
 Exact diffusion in a sphere (the screened Poisson equation with the Robin
 boundary phi + 2AD dphi/dn = 0, solved as a Legendre series in modified
-spherical Bessel functions), lit by one directional light 37 deg off the
-point's normal (the set-up of docs/render.md, "What the curvature adds"):
+spherical Bessel functions), lit by one directional light LIGHT_DEG
+(default 36.87) off the point's normal (the set-up of docs/render.md, "What the curvature adds"):
 each surface point takes in E = cos T(cos) and holds a point source of
 strength a' one reduced mean free path under it, along its normal. Prints
 the exitance at the point over the plane's under the same light. Needs scipy.
 """
+import math
 import sys
 import numpy as np
 from scipy.special import ive
@@ -56,7 +57,8 @@ def main():
     name = sys.argv[1]
     a = float(sys.argv[2]) if len(sys.argv) > 2 else 20.0
     s_s, s_a, eta = PRESETS[name]
-    light = np.array([0.6, -0.8, 0.0])
+    deg = float(sys.argv[3]) if len(sys.argv) > 3 else math.degrees(math.atan2(0.6, 0.8))
+    light = np.array([math.sin(math.radians(deg)), -math.cos(math.radians(deg)), 0.0])
     no = np.array([0.0, -1.0, 0.0])
     g = np.linspace(0, np.pi, 20001)
     gm, dg = 0.5 * (g[1:] + g[:-1]), np.diff(g)
@@ -67,7 +69,7 @@ def main():
         nn = np.cos(gm)[:, None] * no + np.sin(gm)[:, None] * (np.cos(p) * t1 + np.sin(p) * t2)
         c = nn @ light
         e_ring += np.where(c > 0, c * fresnel_t(c, eta), 0) / 256
-    e0 = 0.8 * fresnel_t(0.8, eta)
+    e0 = -light[1] * fresnel_t(-light[1], eta)
     out = []
     for ch in range(3):
         nmax = int(12 * a * (s_s[ch] + s_a[ch])) + 50
@@ -82,7 +84,7 @@ def main():
         big = 2e4
         plane = exitance_coefficients(big, s_s[ch], s_a[ch], eta, 0)[0] * 4 * np.pi * big * big
         out.append(m / (e0 * plane))
-    print(f"{name}, radius {a:g} mm: exitance at the point over the plane's  " + " / ".join(f"{v:.3f}" for v in out))
+    print(f"{name}, radius {a:g} mm, light {deg:.1f} deg: exitance at the point over the plane's  " + " / ".join(f"{v:.3f}" for v in out))
 
 
 if __name__ == "__main__":
