@@ -76,22 +76,33 @@ pub fn sphere_exitance(radius: f64, z_r: f64, z_b: f64, sigma_tr: f64, rs: &[f64
         }
         log_q += (rho0[n] / rho[n]).ln();
     }
-    rs.iter()
+    // Σ g_n P_n(cos γ) at every chord at once, by Bonnet's recurrence
+    // P_n = ((2n - 1) x P_{n-1} - (n - 1) P_{n-2}) / n: the chords'
+    // recurrences are independent, so the inner loop runs across them.
+    let cos_g: Vec<f64> = rs
+        .iter()
         .map(|&r| {
             let s = (r / (2.0 * radius)).min(1.0);
-            let cos_g = 1.0 - 2.0 * s * s;
-            // Σ g_n P_n(cos γ), Bonnet's recurrence.
-            let (mut p0, mut p1) = (1.0, cos_g);
-            let mut m = g[0] + g.get(1).map_or(0.0, |g1| g1 * cos_g);
-            for (n, gn) in g.iter().enumerate().skip(2) {
-                let nf = (n - 1) as f64;
-                let p2 = ((2.0 * nf + 1.0) * cos_g * p1 - nf * p0) / (nf + 1.0);
-                m += gn * p2;
-                (p0, p1) = (p1, p2);
-            }
-            m
+            1.0 - 2.0 * s * s
         })
-        .collect()
+        .collect();
+    let mut p0 = vec![1.0; rs.len()];
+    let mut p1 = cos_g.clone();
+    let mut m: Vec<f64> = cos_g
+        .iter()
+        .map(|&c| g[0] + g.get(1).map_or(0.0, |g1| g1 * c))
+        .collect();
+    for (n, gn) in g.iter().enumerate().skip(2) {
+        let nf = n as f64;
+        let (a, b) = ((2.0 * nf - 1.0) / nf, (nf - 1.0) / nf);
+        for j in 0..rs.len() {
+            let p2 = a * cos_g[j] * p1[j] - b * p0[j];
+            m[j] += gn * p2;
+            p0[j] = p1[j];
+            p1[j] = p2;
+        }
+    }
+    m
 }
 
 /// ρ_n(y) = i_{n+1}(y) / i_n(y) for n < `count`, by the backward
