@@ -145,7 +145,17 @@ impl RdTable {
     /// consistently. This is the pair at normal incidence; under oblique
     /// light the sources follow the refracted beam
     /// ([`RdTable::flux_factors`]).
-    pub fn with_geometry(mut self, params: &DipoleParams) -> RdTable {
+    pub fn with_geometry(self, params: &DipoleParams) -> RdTable {
+        self.geometry_tables(params, true)
+    }
+
+    /// [`RdTable::with_geometry`] without the curvature gain: the dipole's
+    /// images at every pair as it lies (`[render] curvature = false`).
+    pub fn with_geometry_without_curvature(self, params: &DipoleParams) -> RdTable {
+        self.geometry_tables(params, false)
+    }
+
+    fn geometry_tables(mut self, params: &DipoleParams, curvature: bool) -> RdTable {
         let g: [qhm_model::dipole::Dipole; 3] = std::array::from_fn(|c| params.channel(c));
         let dr = 1.0 / self.inv_dr as f64;
         let lanes = |f: &dyn Fn(&qhm_model::dipole::Dipole) -> f64| {
@@ -186,10 +196,16 @@ impl RdTable {
                 .fold(0.0, f32::max),
             beam: sources(&BEAM),
             point: sources(&[(1.0, 1.0)]),
-            curvature: self.curvature_table(&g),
-            curvature_share: lanes(&|d| {
-                ((d.alpha_prime - DIFFUSION_ALBEDO) / 0.04 + 1.0).clamp(0.0, 1.0)
-            }),
+            curvature: if curvature {
+                self.curvature_table(&g)
+            } else {
+                Vec::new()
+            },
+            curvature_share: if curvature {
+                lanes(&|d| ((d.alpha_prime - DIFFUSION_ALBEDO) / 0.04 + 1.0).clamp(0.0, 1.0))
+            } else {
+                Vec4::ZERO
+            },
             oblique_norm: vec![Vec4::ONE; OBLIQUE_STEPS],
             near_oblique: Vec::new(),
         });
@@ -1332,8 +1348,7 @@ mod tests {
         // 1-7 mm; the dipole's images alone miss it by up to 8 %.
         let p = crate::materials::preset("apple").unwrap();
         let t = RdTable::new(&p, 0.0).with_geometry(&p);
-        let mut images = t.clone();
-        images.geometry.as_mut().unwrap().curvature_share = Vec4::ZERO;
+        let images = RdTable::new(&p, 0.0).with_geometry_without_curvature(&p);
         let ra = 20.0f32;
         let d = p.channel(0);
         let z_b = 0.5 * (d.z_v - d.z_r);

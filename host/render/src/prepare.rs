@@ -36,6 +36,7 @@ pub struct Prepared {
     /// `rd`'s near field and geometry factor, as in the settings.
     pub(crate) near_field: f32,
     pub(crate) geometry: bool,
+    pub(crate) curvature: bool,
     pub(crate) eta: f64,
     /// F̄, the hemispherical mean of F_r: normalises the plain dipole's exit.
     pub(crate) fresnel_average: f64,
@@ -119,7 +120,7 @@ pub fn prepare<M: Material>(
         &samples,
         hole,
         settings.near_field,
-        settings.geometry,
+        settings.geometry.then_some(settings.curvature),
     );
     stats.secs_tree += t.elapsed().as_secs_f64();
     let tree = light_pass(
@@ -140,6 +141,7 @@ pub fn prepare<M: Material>(
         hole,
         near_field: settings.near_field,
         geometry: settings.geometry,
+        curvature: settings.curvature,
         eta: dipole.eta,
         fresnel_average: qhm_model::fresnel::fresnel_hemispherical_average(dipole.eta),
         exit_shape: material.smooth_boundary().then(|| ExitShape::new(&dipole)),
@@ -221,7 +223,7 @@ fn rd_table<M: Material>(
     samples: &SurfaceSamples,
     hole: f32,
     near_field: f32,
-    geometry: bool,
+    geometry: Option<bool>,
 ) -> RdTable {
     // Every sample stands for an equal share A of the area; the kernel is
     // averaged over a disk of twice that radius, which hides the sample
@@ -229,10 +231,10 @@ fn rd_table<M: Material>(
     let radius = (samples.mean_area() / PI).sqrt();
     let rd = RdTable::with_hole(&material.dipole(), KERNEL_SPREAD * radius, hole)
         .with_near_field(near_field * radius);
-    if geometry {
-        rd.with_geometry(&material.dipole())
-    } else {
-        rd
+    match geometry {
+        Some(true) => rd.with_geometry(&material.dipole()),
+        Some(false) => rd.with_geometry_without_curvature(&material.dipole()),
+        None => rd,
     }
 }
 
@@ -269,17 +271,19 @@ impl Prepared {
         if hole != self.hole
             || settings.near_field != self.near_field
             || settings.geometry != self.geometry
+            || settings.curvature != self.curvature
         {
             self.rd = rd_table(
                 material,
                 &self.samples,
                 hole,
                 settings.near_field,
-                settings.geometry,
+                settings.geometry.then_some(settings.curvature),
             );
             self.hole = hole;
             self.near_field = settings.near_field;
             self.geometry = settings.geometry;
+            self.curvature = settings.curvature;
         }
         self.tree = light_pass(
             scene,

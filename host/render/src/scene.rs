@@ -43,6 +43,7 @@
 //! local_radius_mm = 0.0
 //! near_field = 6.0              # irradiance interpolation radius, in sample radii (0 = off)
 //! geometry = true               # the dipole's exit-plane factor on curved/thin objects
+//! curvature = true              # its curvature gain on smooth convex and concave parts
 //! indirect_rays = 8             # rays per sample for light between parts (0 = off)
 //! seed = 1
 //! ```
@@ -197,6 +198,7 @@ pub struct RenderToml {
     pub local_radius_mm: Option<f32>,
     pub near_field: Option<f32>,
     pub geometry: Option<bool>,
+    pub curvature: Option<bool>,
     pub indirect_rays: Option<usize>,
     pub seed: Option<u64>,
     pub synthesis: Option<bool>,
@@ -398,6 +400,7 @@ impl SceneFile {
         s.local_radius_mm = r.local_radius_mm.unwrap_or(s.local_radius_mm);
         s.near_field = r.near_field.unwrap_or(s.near_field);
         s.geometry = r.geometry.unwrap_or(s.geometry);
+        s.curvature = r.curvature.unwrap_or(s.curvature);
         s.indirect_rays = r.indirect_rays.unwrap_or(s.indirect_rays);
         s.seed = r.seed.unwrap_or(s.seed);
         s.synthesis = r.synthesis.unwrap_or(s.synthesis);

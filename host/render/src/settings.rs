@@ -74,6 +74,9 @@ pub struct RenderSettings {
     /// The dipole's exit-plane geometry factor on curved and thin objects
     /// ([`crate::octree::RdTable::with_geometry`]).
     pub geometry: bool,
+    /// Within the geometry factor, the gain of a curved surface from
+    /// diffusion theory in a sphere ([`crate::curvature`]).
+    pub curvature: bool,
     /// Rays per surface sample for the light the object sends itself (two
     /// bounces of the global term, [`crate::interreflection`]; 0 = none).
     pub indirect_rays: usize,
@@ -100,6 +103,7 @@ impl Default for RenderSettings {
             local_radius_mm: 0.0,
             near_field: NEAR_FIELD_SPREAD,
             geometry: true,
+            curvature: true,
             indirect_rays: 8,
             seed: 1,
             synthesis: true,
