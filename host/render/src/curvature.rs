@@ -7,14 +7,14 @@
 //! an exitance M_R(γ) = Σ_n g_n P_n(cos γ) at the angle γ from the source's
 //! axis, with modified spherical Bessel functions i_n:
 //!
-//!   g_n ∝ (2n + 1) q_n / (1 + z_b (σ_tr i_n'(x)/i_n(x) + ... )) / R²,
-//!   q_n = i_n(σ_tr (R - z_r)) / i_n(σ_tr R), x = σ_tr R, z_b = 2AD,
+//!   g_n ∝ (2n + 1) q_n / (1 + z_b σ_tr i_n'(x) / i_n(x)) / R²,
+//!   q_n = i_n(σ_tr (R - z_r)) / i_n(σ_tr R), x = σ_tr R, z_b = 2AD
 //!
 //! (spelled out in [`sphere_exitance`]). At a chord r from the entry, with
 //! R much larger than r and the diffusion lengths, M_R(r) / M_plane(r) =
 //! 1 + F(r) / R: to first order the response is linear in the curvature
-//! 1/R (it holds to within a few per cent of the gain at R = 10 mm for the
-//! presets). A convex surface sends out more than a plane: less of the
+//! 1/R (for apple it holds to within a few per cent of the gain at
+//! R = 10 mm). A convex surface sends out more than a plane: less of the
 //! medium lies around the source, and the light's paths between entry and
 //! exit run deeper under the boundary. The dipole's images, placed by the
 //! entry's tangent plane, give little of that (see
