@@ -324,27 +324,18 @@ impl Mesh {
         if !closed {
             return None;
         }
-        // Shells: faces joined through their welded corners (union-find).
-        let mut parent: Vec<u32> = (0..self.positions.len() as u32).collect();
-        fn root(parent: &mut [u32], mut i: u32) -> u32 {
-            while parent[i as usize] != i {
-                parent[i as usize] = parent[parent[i as usize] as usize];
-                i = parent[i as usize];
-            }
-            i
-        }
+        // Shells: faces joined through their welded corners.
+        let mut shells = DisjointSets::new(self.positions.len());
         for t in &self.triangles {
             let w = t.map(|i| self.weld[i as usize]);
-            for k in 1..3 {
-                let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[k]));
-                parent[a as usize] = b;
-            }
+            shells.join(w[0], w[1]);
+            shells.join(w[0], w[2]);
         }
         // Six times each shell's enclosed volume, signed by the winding.
         let mut volume: HashMap<u32, f64> = HashMap::new();
         for (t, tri) in self.triangles.iter().enumerate() {
             let [a, b, c] = self.corners(t).map(|p| p.as_dvec3());
-            let shell = root(&mut parent, self.weld[tri[0] as usize]);
+            let shell = shells.root(self.weld[tri[0] as usize]);
             *volume.entry(shell).or_default() += a.dot(b.cross(c));
         }
         let sign = volume.values().next()?.signum();
@@ -384,6 +375,31 @@ pub fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
 }
 
 /// Maps each vertex to the id of the first vertex within `tol` (grid hash).
+/// Disjoint sets of 0..n (union-find with path halving). A join keeps the
+/// smaller root, so the sets' roots do not depend on the order of joins
+/// within a set.
+pub(crate) struct DisjointSets(Vec<u32>);
+
+impl DisjointSets {
+    pub(crate) fn new(n: usize) -> DisjointSets {
+        DisjointSets((0..n as u32).collect())
+    }
+
+    pub(crate) fn root(&mut self, mut i: u32) -> u32 {
+        let p = &mut self.0;
+        while p[i as usize] != i {
+            p[i as usize] = p[p[i as usize] as usize];
+            i = p[i as usize];
+        }
+        i
+    }
+
+    pub(crate) fn join(&mut self, a: u32, b: u32) {
+        let (ra, rb) = (self.root(a), self.root(b));
+        self.0[ra.max(rb) as usize] = ra.min(rb);
+    }
+}
+
 pub(crate) fn weld_ids(positions: &[Vec3], tol: f32) -> Vec<u32> {
     let inv = 1.0 / tol.max(f32::MIN_POSITIVE);
     let mut map: HashMap<[i64; 3], u32> = HashMap::with_capacity(positions.len());
@@ -460,32 +476,24 @@ fn generated_normals(
     // The normal of each face's group around each of its welded corners.
     let mut corner_normal: HashMap<(usize, u32), Vec3> = HashMap::new();
     for (&w, faces) in &around {
-        // union-find over the fan, joined across smooth edges through w
-        let mut root: Vec<usize> = (0..faces.len()).collect();
-        fn find(root: &mut [usize], mut a: usize) -> usize {
-            while root[a] != a {
-                root[a] = root[root[a]];
-                a = root[a];
-            }
-            a
-        }
+        // the fan's faces, joined across smooth edges through w
+        let mut groups = DisjointSets::new(faces.len());
         for a in 0..faces.len() {
             for b in a + 1..faces.len() {
                 let (fa, fb) = (faces[a], faces[b]);
                 let (va, vb) = (welded(fa), welded(fb));
                 let shares_edge = va.iter().any(|&x| x != w && vb.contains(&x));
                 if shares_edge && unit[fa].dot(unit[fb]) >= cos_crease {
-                    let (ra, rb) = (find(&mut root, a), find(&mut root, b));
-                    root[ra] = rb;
+                    groups.join(a as u32, b as u32);
                 }
             }
         }
-        let mut sums: HashMap<usize, Vec3> = HashMap::new();
+        let mut sums: HashMap<u32, Vec3> = HashMap::new();
         for (a, &f) in faces.iter().enumerate() {
-            *sums.entry(find(&mut root, a)).or_default() += area_normals[f];
+            *sums.entry(groups.root(a as u32)).or_default() += area_normals[f];
         }
         for (a, &f) in faces.iter().enumerate() {
-            let n = sums[&find(&mut root, a)].normalize_or_zero();
+            let n = sums[&groups.root(a as u32)].normalize_or_zero();
             corner_normal.insert((f, w), n);
         }
     }

@@ -183,6 +183,11 @@ impl RdTable {
                 .collect(),
         };
         let z_r = lanes(&|d| d.z_r);
+        let share = if curvature {
+            lanes(&|d| ((d.alpha_prime - DIFFUSION_ALBEDO) / 0.04 + 1.0).clamp(0.0, 1.0))
+        } else {
+            Vec4::ZERO
+        };
         self.geometry = Some(DipoleLanes {
             z_r,
             z_v: lanes(&|d| d.z_v),
@@ -196,16 +201,13 @@ impl RdTable {
                 .fold(0.0, f32::max),
             beam: sources(&BEAM),
             point: sources(&[(1.0, 1.0)]),
-            curvature: if curvature {
+            // The series only for a material some channel of which takes it.
+            curvature: if share != Vec4::ZERO {
                 self.curvature_table(&g)
             } else {
                 Vec::new()
             },
-            curvature_share: if curvature {
-                lanes(&|d| ((d.alpha_prime - DIFFUSION_ALBEDO) / 0.04 + 1.0).clamp(0.0, 1.0))
-            } else {
-                Vec4::ZERO
-            },
+            curvature_share: share,
             oblique_norm: vec![Vec4::ONE; OBLIQUE_STEPS],
             near_oblique: Vec::new(),
         });
@@ -414,11 +416,7 @@ impl RdTable {
             0.0
         };
         let flat = (dx - ni * nd) * stretch + ni * off;
-        let u_flat = if u == Vec3::ZERO {
-            u
-        } else {
-            (u - ni * ni.dot(u)).normalize_or_zero()
-        };
+        let u_flat = (u - ni * ni.dot(u)).normalize_or_zero();
         let (gf, guf) = self.pair_flux(g, flat, r, ni, wi, thick, slab_near, ni, u_flat);
         let gain = self.curvature_gain(g, r, k);
         let curved = (gf * gain, guf * gain);
@@ -437,13 +435,19 @@ impl RdTable {
     /// (1/mm, negative where concave), kept within [0, MAX_CURVATURE_GAIN].
     #[inline]
     fn curvature_gain(&self, g: &DipoleLanes, r: f32, k: f32) -> Vec3 {
-        let x = r * self.inv_dr;
-        let i = (x as usize).min(g.curvature.len() - 2);
-        let t = (x - i as f32).min(1.0);
-        let f = g.curvature[i] * (1.0 - t) + g.curvature[i + 1] * t;
-        (Vec4::ONE + f * k)
+        (Vec4::ONE + self.lanes_at(&g.curvature, r) * k)
             .clamp(Vec4::ZERO, Vec4::splat(MAX_CURVATURE_GAIN))
             .truncate()
+    }
+
+    /// A per-channel table on [`RdTable::eval`]'s grid at `r`, linear
+    /// between its points and held at the last.
+    #[inline]
+    fn lanes_at(&self, table: &[Vec4], r: f32) -> Vec4 {
+        let x = r * self.inv_dr;
+        let i = (x as usize).min(table.len().saturating_sub(2));
+        let t = (x - i as f32).min(1.0);
+        table[i] * (1.0 - t) + table[i + 1] * t
     }
 
     /// [`RdTable::flux_factors`] of one pair as the dipole's images give
@@ -474,12 +478,7 @@ impl RdTable {
         }
         // The beam near its entry, one pair (at its mean depth) beyond.
         let set = if r < g.beam_reach { &g.beam } else { &g.point };
-        let planar = {
-            let x = r * self.inv_dr;
-            let i = (x as usize).min(set.planar.len().saturating_sub(2));
-            let t = (x - i as f32).min(1.0);
-            set.planar[i] * (1.0 - t) + set.planar[i + 1] * t
-        };
+        let planar = self.lanes_at(&set.planar, r);
         // (s_tr d + 1) e^{-s_tr d} / d³.
         let f = |d2: Vec4| {
             let d2 = d2.max(Vec4::splat(1e-12));

@@ -21,7 +21,7 @@
 use glam::{DVec2, Quat, Vec3};
 use rayon::prelude::*;
 
-use crate::mesh::Mesh;
+use crate::mesh::{DisjointSets, Mesh};
 
 /// One tangent per mesh vertex. Its length is the field's strength (about 1
 /// on average, falling to 0 at a singularity); only the direction orients
@@ -166,24 +166,13 @@ fn vertex_areas(mesh: &Mesh) -> Vec<f64> {
 
 /// The connected parts of the graph, as lists of vertices.
 fn parts(n: usize, links: &[Link]) -> Vec<Vec<u32>> {
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(p: &mut [u32], mut i: u32) -> u32 {
-        while p[i as usize] != i {
-            p[i as usize] = p[p[i as usize] as usize];
-            i = p[i as usize];
-        }
-        i
-    }
+    let mut sets = DisjointSets::new(n);
     for l in links {
-        let (ra, rb) = (root(&mut parent, l.a), root(&mut parent, l.b));
-        if ra != rb {
-            parent[ra.max(rb) as usize] = ra.min(rb);
-        }
+        sets.join(l.a, l.b);
     }
     let mut groups: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
     for i in 0..n as u32 {
-        let r = root(&mut parent, i);
-        groups.entry(r).or_default().push(i);
+        groups.entry(sets.root(i)).or_default().push(i);
     }
     groups.into_values().collect()
 }
