@@ -262,14 +262,14 @@ fn marble_sphere_front_lit_matches_the_path_tracer() {
 fn apple_sphere_back_lit_matches_the_path_tracer() {
     // Blue is left out: apple absorbs it (s_a 0.046 / mm), and the light
     // through 40 mm is within the reference's noise.
-    check("apple-back", &[0, 1], 0.1, 0.14, 0.16);
+    check("apple-back", &[0, 1], 0.05, 0.06, 0.16);
 }
 
 #[test]
 fn skin1_sphere_back_lit_matches_the_path_tracer() {
     // Blocks are not compared: few of the reference's paths get through
     // 40 mm of skin, and its 8 x 8 blocks are mostly its own noise.
-    check("skin1-back", &[0, 1, 2], 0.32, 0.32, f64::INFINITY);
+    check("skin1-back", &[0, 1, 2], 0.22, 0.22, f64::INFINITY);
 }
 
 #[test]
@@ -358,7 +358,7 @@ fn check_radiative_transfer(case: &str, channels: &[usize], mean: f64, term: f64
 /// 6-12 % in green and blue at these albedos.
 #[test]
 fn skin1_sphere_front_lit_needs_radiative_transfer() {
-    check_radiative_transfer("skin1-front", &[0, 1, 2], 0.045, 0.12, 0.03);
+    check_radiative_transfer("skin1-front", &[0, 1, 2], 0.03, 0.12, 0.03);
 }
 
 /// ketchup's red (a' 0.75, s'_t 0.24 mm^-1) lit from the front and from
@@ -373,7 +373,7 @@ fn ketchup_red_needs_radiative_transfer() {
 
 #[test]
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
-    check("skin1-side", &[0, 1, 2], 0.1, 0.17, 0.12);
+    check("skin1-side", &[0, 1, 2], 0.03, 0.11, 0.09);
 }
 
 /// Every cached case at `qhm render`'s default quality (30,000 surface
@@ -383,12 +383,12 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 #[ignore]
 fn every_cached_case_at_default_quality() {
     let cases: [(&str, &[usize], f64, f64, f64); 9] = [
-        ("skin1-front", &[0, 1, 2], 0.04, 0.11, 0.02),
-        ("skin1-side", &[0, 1, 2], 0.06, 0.11, 0.1),
-        ("skin1-back", &[0, 1, 2], 0.25, 0.27, f64::INFINITY),
+        ("skin1-front", &[0, 1, 2], 0.03, 0.11, 0.02),
+        ("skin1-side", &[0, 1, 2], 0.03, 0.1, 0.09),
+        ("skin1-back", &[0, 1, 2], 0.21, 0.2, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
         ("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03),
-        ("apple-back", &[0, 1], 0.1, 0.13, 0.16),
+        ("apple-back", &[0, 1], 0.07, 0.08, 0.16),
         ("marble-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05),
         ("ketchup-back", &[0], 0.08, f64::INFINITY, 0.1),
