@@ -66,8 +66,32 @@ pub fn prepare<M: Material>(
     if !(texel_mm.is_finite() && texel_mm > 0.0) {
         return Err(RenderError::Material(format!("texel size {texel_mm} mm")));
     }
+    // The tangent field and the dart throwing are both mostly serial:
+    // side by side on two cores.
     let t = Instant::now();
-    let field = TangentField::new(&scene.mesh);
+    let (field, mut samples) = rayon::join(
+        || TangentField::new(&scene.mesh),
+        || {
+            if settings.mode.has_global() {
+                points::poisson_disk(&scene.mesh, settings.surface_samples, settings.seed)
+            } else {
+                SurfaceSamples::default()
+            }
+        },
+    );
+    samples.tangent = samples
+        .pos
+        .iter()
+        .zip(&samples.tri)
+        .map(|(p, &t)| {
+            let (b1, b2) = scene.mesh.barycentric(t as usize, *p);
+            field.at(&scene.mesh, t as usize, b1, b2)
+        })
+        .collect();
+    // Whatever `geometry` says: `relight` may turn it on later.
+    points::compute_thickness(scene, &mut samples);
+    stats.secs_samples = t.elapsed().as_secs_f64();
+    let t = Instant::now();
     let (tw, th) = material.texture_size();
     let texture = if settings.synthesis && tw >= 8 && th >= 8 {
         let f = Features::of_material(material);
@@ -90,24 +114,6 @@ pub fn prepare<M: Material>(
         }
     };
     stats.secs_synthesis = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let mut samples = if settings.mode.has_global() {
-        points::poisson_disk(&scene.mesh, settings.surface_samples, settings.seed)
-    } else {
-        SurfaceSamples::default()
-    };
-    samples.tangent = samples
-        .pos
-        .iter()
-        .zip(&samples.tri)
-        .map(|(p, &t)| {
-            let (b1, b2) = scene.mesh.barycentric(t as usize, *p);
-            field.at(&scene.mesh, t as usize, b1, b2)
-        })
-        .collect();
-    // Whatever `geometry` says: `relight` may turn it on later.
-    points::compute_thickness(scene, &mut samples);
-    stats.secs_samples = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let entry_shape = (settings.mode.has_global()
         && (material.smooth_boundary() || settings.mode.plain_dipole()))

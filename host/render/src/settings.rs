@@ -227,6 +227,7 @@ pub fn human_bytes(b: u64) -> String {
 pub struct RenderStats {
     pub surface_samples: usize,
     pub octree_nodes: usize,
+    /// The surface samples, with the tangent field beside them.
     pub secs_samples: f64,
     pub secs_irradiance: f64,
     /// The light between the object's parts, and how many rays came back.
