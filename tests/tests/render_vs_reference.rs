@@ -262,14 +262,14 @@ fn marble_sphere_front_lit_matches_the_path_tracer() {
 fn apple_sphere_back_lit_matches_the_path_tracer() {
     // Blue is left out: apple absorbs it (s_a 0.046 / mm), and the light
     // through 40 mm is within the reference's noise.
-    check("apple-back", &[0, 1], 0.05, 0.06, 0.16);
+    check("apple-back", &[0, 1], 0.06, 0.07, 0.16);
 }
 
 #[test]
 fn skin1_sphere_back_lit_matches_the_path_tracer() {
     // Blocks are not compared: few of the reference's paths get through
     // 40 mm of skin, and its 8 x 8 blocks are mostly its own noise.
-    check("skin1-back", &[0, 1, 2], 0.22, 0.22, f64::INFINITY);
+    check("skin1-back", &[0, 1, 2], 0.25, 0.25, f64::INFINITY);
 }
 
 #[test]
@@ -373,7 +373,7 @@ fn ketchup_red_needs_radiative_transfer() {
 
 #[test]
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
-    check("skin1-side", &[0, 1, 2], 0.03, 0.11, 0.09);
+    check("skin1-side", &[0, 1, 2], 0.045, 0.11, 0.1);
 }
 
 /// Every cached case at `qhm render`'s default quality (30,000 surface
@@ -384,11 +384,11 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 fn every_cached_case_at_default_quality() {
     let cases: [(&str, &[usize], f64, f64, f64); 9] = [
         ("skin1-front", &[0, 1, 2], 0.03, 0.11, 0.02),
-        ("skin1-side", &[0, 1, 2], 0.03, 0.1, 0.09),
-        ("skin1-back", &[0, 1, 2], 0.21, 0.2, f64::INFINITY),
+        ("skin1-side", &[0, 1, 2], 0.045, 0.1, 0.1),
+        ("skin1-back", &[0, 1, 2], 0.23, 0.23, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
         ("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03),
-        ("apple-back", &[0, 1], 0.07, 0.08, 0.16),
+        ("apple-back", &[0, 1], 0.08, 0.09, 0.16),
         ("marble-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05),
         ("ketchup-back", &[0], 0.08, f64::INFINITY, 0.1),
