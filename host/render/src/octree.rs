@@ -309,6 +309,7 @@ impl RdTable {
                 (r, self.eval(r) * weight(r) * (r * dr * dphi * 2.0))
             })
             .collect();
+        let u = if flow { Vec3::X } else { Vec3::ZERO };
         (0..OBLIQUE_STEPS)
             .into_par_iter()
             .map(|k| {
@@ -320,7 +321,6 @@ impl RdTable {
                         let phi = (j as f32 + 0.5) * dphi;
                         let dx = Vec3::new(r * phi.cos(), r * phi.sin(), 0.0);
                         let half_space = f32::INFINITY;
-                        let u = if flow { Vec3::X } else { Vec3::ZERO };
                         let (g, g_u) =
                             self.flux_factors(dx, r, Vec3::Z, wi, half_space, Vec3::Z, u);
                         sum += kw * if flow { g_u } else { g };
@@ -1649,6 +1649,24 @@ mod tests {
         );
     }
 
+    /// The normal and tangential (along +x) flux of the slab's top
+    /// summed over the probes that `keep` keeps.
+    fn flux_along_x(
+        tree: &DipoleTree,
+        t: &RdTable,
+        probe: &SurfaceSamples,
+        keep: impl Fn(&Vec3) -> bool,
+        r_min: f32,
+    ) -> (Vec3, Vec3) {
+        let mut st = QueryStats::default();
+        probe
+            .pos
+            .iter()
+            .filter(|q| keep(q))
+            .map(|&q| tree.query_flux(q, Vec3::Z, Vec3::X, t, 0.02, r_min, &mut st))
+            .fold((Vec3::ZERO, Vec3::ZERO), |a, b| (a.0 + b.0, a.1 + b.1))
+    }
+
     #[test]
     fn the_near_field_carries_the_flow_across_a_shadow_edge() {
         // The slab's top lit for x < 0 only, by a beam refracted to 60°
@@ -1686,14 +1704,9 @@ mod tests {
             let near = RdTable::new(&p, 0.0)
                 .with_near_field(6.0 * radius)
                 .with_geometry(&p);
+            let past_edge = |q: &Vec3| q.z > -1e-3 && q.x > 0.0 && q.x < 2.0 && q.y.abs() < 8.0;
             let sums = |tree: &DipoleTree, t: &RdTable, r_min: f32| {
-                let mut st = QueryStats::default();
-                probe
-                    .pos
-                    .iter()
-                    .filter(|q| q.z > -1e-3 && q.x > 0.0 && q.x < 2.0 && q.y.abs() < 8.0)
-                    .map(|&q| tree.query_flux(q, Vec3::Z, Vec3::X, t, 0.02, r_min, &mut st))
-                    .fold((Vec3::ZERO, Vec3::ZERO), |a, b| (a.0 + b.0, a.1 + b.1))
+                flux_along_x(tree, t, &probe, past_edge, r_min)
             };
             let ((mn, mu), (dn, du)) = (sums(&tree, &near, 0.0), sums(&dense, &plain, 0.0));
             let (_, far_u) = sums(&tree, &plain, 6.0 * radius);
@@ -1730,14 +1743,9 @@ mod tests {
             .with_geometry(&p);
         let mut raw = t.clone();
         raw.geometry.as_mut().unwrap().oblique_flow.clear();
+        let middle = |q: &Vec3| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0;
         let flow = |t: &RdTable| {
-            let mut st = QueryStats::default();
-            let (n, u) = probe
-                .pos
-                .iter()
-                .filter(|q| q.z > -1e-3 && q.x.abs() < 8.0 && q.y.abs() < 8.0)
-                .map(|&q| tree.query_flux(q, Vec3::Z, Vec3::X, t, 0.02, 0.0, &mut st))
-                .fold((Vec3::ZERO, Vec3::ZERO), |a, b| (a.0 + b.0, a.1 + b.1));
+            let (n, u) = flux_along_x(&tree, t, &probe, middle, 0.0);
             (u / n).abs().max_element()
         };
         let (with, without) = (flow(&t), flow(&raw));
