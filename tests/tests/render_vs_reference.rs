@@ -2,8 +2,11 @@
 //! radius sphere of the skin1, apple, marble and ketchup presets, lit from the front, the
 //! side and behind by a small sun (8° disk) and by an environment map,
 //! against Mitsuba 3's volumetric path tracer on the presets' exported
-//! medium in its dielectric boundary (`volpathmis`, scalar_rgb, 2 x 512
-//! spp). The references are cached, reduced to what the comparison needs,
+//! medium in its dielectric boundary (`volpathmis`, scalar_rgb; 6 to 16
+//! seeds of 1,024 spp for skin1 and apple lit by the sun and ketchup lit
+//! from behind, 2 x 512 spp for the others: the JSON's `reference` says
+//! which, and `mean_relative_se` how uncertain its mean is). The
+//! references are cached, reduced to what the comparison needs,
 //! in tests/data/render_reference/CASE.json (made by
 //! `mitsuba_reference.py` and the reduction described in docs/render.md;
 //! the boundary's mirror reflection of the lights is taken out of them, as
@@ -40,6 +43,9 @@ struct Case {
     mesh: Option<String>,
     pixels: Vec<Vec<u8>>,
     mean: [f64; 3],
+    /// The reference mean's relative standard error over its seeds, where
+    /// it was made from more than two.
+    mean_se: Option<[f64; 3]>,
     terminator: Option<[f64; 3]>,
     /// (x0, y0, mean, noise of the mean)
     blocks: Vec<(u32, u32, [f64; 3], [f64; 3])>,
@@ -71,6 +77,9 @@ fn load(case: &str) -> Case {
             .map(|r| r.as_str().unwrap().bytes().collect())
             .collect(),
         mean: rgb(&v["mean"]),
+        mean_se: v["mean_relative_se"]
+            .as_array()
+            .map(|_| rgb(&v["mean_relative_se"])),
         terminator: v["terminator"].as_array().map(|_| rgb(&v["terminator"])),
         blocks: v["blocks"]
             .as_array()
@@ -260,16 +269,16 @@ fn marble_sphere_front_lit_matches_the_path_tracer() {
 
 #[test]
 fn apple_sphere_back_lit_matches_the_path_tracer() {
-    // Blue is left out: apple absorbs it (s_a 0.046 / mm), and the light
-    // through 40 mm is within the reference's noise.
-    check("apple-back", &[0, 1], 0.06, 0.07, 0.16);
+    // Blue is left out: apple absorbs it (s_a 0.046 / mm), and qhm gives
+    // 0.80 of the reference there (whose mean is uncertain by 6 %).
+    check("apple-back", &[0, 1], 0.04, 0.06, 0.13);
 }
 
 #[test]
 fn skin1_sphere_back_lit_matches_the_path_tracer() {
-    // Blocks are not compared: few of the reference's paths get through
-    // 40 mm of skin, and its 8 x 8 blocks are mostly its own noise.
-    check("skin1-back", &[0, 1, 2], 0.25, 0.25, f64::INFINITY);
+    // Blocks are not compared: qhm's red is 20 % dark, most of it where
+    // the light has crossed the sphere (docs/render.md).
+    check("skin1-back", &[0, 1, 2], 0.22, 0.2, f64::INFINITY);
 }
 
 #[test]
@@ -358,22 +367,23 @@ fn check_radiative_transfer(case: &str, channels: &[usize], mean: f64, term: f64
 /// 6-12 % in green and blue at these albedos.
 #[test]
 fn skin1_sphere_front_lit_needs_radiative_transfer() {
-    check_radiative_transfer("skin1-front", &[0, 1, 2], 0.03, 0.12, 0.03);
+    check_radiative_transfer("skin1-front", &[0, 1, 2], 0.03, 0.05, 0.03);
 }
 
 /// ketchup's red (a' 0.75, s'_t 0.24 mm^-1) lit from the front and from
 /// behind: the dipole's image lies 18 mm above the entry on a 20 mm sphere,
 /// 19 % bright front-lit. Green and blue (a' 0.07, 0.02) are left out: the
-/// reference's blocks there are noise at the 70-200 % level.
+/// reference's blocks there are noise at the 70-200 % level, and its mean
+/// lit from behind is uncertain by half.
 #[test]
 fn ketchup_red_needs_radiative_transfer() {
     check_radiative_transfer("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05);
-    check_radiative_transfer("ketchup-back", &[0], 0.09, f64::INFINITY, 0.1);
+    check_radiative_transfer("ketchup-back", &[0], 0.03, f64::INFINITY, 0.25);
 }
 
 #[test]
 fn skin1_sphere_side_lit_matches_the_path_tracer() {
-    check("skin1-side", &[0, 1, 2], 0.045, 0.11, 0.1);
+    check("skin1-side", &[0, 1, 2], 0.04, 0.07, 0.06);
 }
 
 /// Every cached case at `qhm render`'s default quality (30,000 surface
@@ -383,15 +393,15 @@ fn skin1_sphere_side_lit_matches_the_path_tracer() {
 #[ignore]
 fn every_cached_case_at_default_quality() {
     let cases: [(&str, &[usize], f64, f64, f64); 9] = [
-        ("skin1-front", &[0, 1, 2], 0.03, 0.11, 0.02),
-        ("skin1-side", &[0, 1, 2], 0.045, 0.1, 0.1),
-        ("skin1-back", &[0, 1, 2], 0.23, 0.23, f64::INFINITY),
+        ("skin1-front", &[0, 1, 2], 0.03, 0.05, 0.03),
+        ("skin1-side", &[0, 1, 2], 0.04, 0.05, 0.06),
+        ("skin1-back", &[0, 1, 2], 0.22, 0.2, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
         ("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03),
-        ("apple-back", &[0, 1], 0.08, 0.09, 0.16),
+        ("apple-back", &[0, 1], 0.03, 0.05, 0.13),
         ("marble-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05),
-        ("ketchup-back", &[0], 0.08, f64::INFINITY, 0.1),
+        ("ketchup-back", &[0], 0.03, f64::INFINITY, 0.25),
     ];
     let mut failed = Vec::new();
     for (case, channels, mean, term, blocks) in cases {
@@ -402,8 +412,8 @@ fn every_cached_case_at_default_quality() {
         let model = MaterialModel::homogeneous(preset(&c.material).unwrap());
         let m = metrics(&c, &render(&c, &model, false));
         eprintln!(
-            "{case}: mean {:.3?} terminator {:.3?} blocks {:.3?}",
-            m.mean, m.terminator, m.block_rmse
+            "{case}: mean {:.3?} (reference's relative s.e. {:.3?}) terminator {:.3?} blocks {:.3?}",
+            m.mean, c.mean_se, m.terminator, m.block_rmse
         );
         if let Err(e) = within(&m, channels, mean, term, blocks) {
             failed.push(format!("{case}: {e}"));

@@ -27,9 +27,14 @@ for case in sys.stdin.read().split():
         for bx in range(0, s["width"], 8):
             if m[by:by+8, bx:bx+8].all():
                 blocks.append([bx, by] + r[by:by+8, bx:bx+8].reshape(-1, 3).mean(0).tolist() + nz[by:by+8, bx:bx+8].reshape(-1, 3).mean(0).tolist())
+    seeds = json.load(open(f"ref/{case}-seeds.json")) if os.path.exists(f"ref/{case}-seeds.json") else None
+    made = (f"{len(seeds['seeds'])} x {seeds['spp_per_seed']} spp (seeds {', '.join(map(str, seeds['seeds']))})"
+            if seeds else "2 x 512 spp (seeds 1, 2)")
     out = {"case": case, "material": s["name"], "scene_toml": toml_of(case),
-           "reference": "Mitsuba 3.9.1 scalar_rgb volpathmis, 2 x 512 spp (seeds 1, 2), mirror reflection of the lights removed analytically",
+           "reference": f"Mitsuba 3.9.1 scalar_rgb volpathmis, {made}, mirror reflection of the lights removed analytically",
            "pixels": rows, "mean": r[m].mean(0).tolist(),
            "terminator": r[band].mean(0).tolist() if band.any() else None, "blocks": blocks}
+    if seeds:
+        out["mean_relative_se"] = seeds["mean_relative_se"]
     json.dump(out, open(f"{OUT}/{case}.json", "w"), indent=0)
     print(case, m.sum(), band.sum(), len(blocks))
