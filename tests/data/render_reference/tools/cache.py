@@ -15,8 +15,7 @@ for case in sys.stdin.read().split():
     A = load(f"ref/{case}-s1.exr"); B = load(f"ref/{case}-s2.exr")
     alpha = np.minimum(A[..., 3], B[..., 3]); spec = specular(s)
     A = A[..., :3] - spec; B = B[..., :3] - spec
-    n, hit = normals(s); m = hit & (alpha > 0.999)
-    e = m.copy(); e[1:] &= m[:-1]; e[:-1] &= m[1:]; e[:, 1:] &= m[:, :-1]; e[:, :-1] &= m[:, 1:]; m = e
+    n, m = compared(s, alpha)
     band = np.zeros_like(m)
     if "sun" in s:
         l = np.array(s["sun"]["to_light"], float); l /= np.linalg.norm(l); band = m & (np.abs(n @ l) < 0.25)

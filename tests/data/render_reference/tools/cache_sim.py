@@ -8,8 +8,7 @@ exec(open(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'compare.py')
 sim, toml, material, mesh, case = args
 seeds = [load(f)[..., :3] for f in sim.split(",")]
 s = sum(seeds) / len(seeds)
-m = s.sum(-1) > 0
-e = m.copy(); e[1:] &= m[:-1]; e[:-1] &= m[1:]; e[:, 1:] &= m[:, :-1]; e[:, :-1] &= m[:, 1:]
+e = eroded(s.sum(-1) > 0)
 rows = ["".join("o" if e[y, x] else "." for x in range(e.shape[1])) for y in range(e.shape[0])]
 blocks = []
 for by in range(0, e.shape[0], 8):

@@ -65,6 +65,14 @@ def specular(s, k=4):
                     if "sun" in s and r @ l > math.cos(a): acc += F * Ls
             out[y, x] = acc / (k * k)
     return out
+def eroded(m):
+    """m less its edge pixels (which mix the background)."""
+    e = m.copy(); e[1:] &= m[:-1]; e[:-1] &= m[1:]; e[:, 1:] &= m[:, :-1]; e[:, :-1] &= m[:, 1:]
+    return e
+def compared(s, alpha):
+    """The sphere's normals and the pixels compared: fully covered (alpha), edge pixels left out."""
+    n, hit = normals(s)
+    return n, eroded(hit & (alpha > 0.999))
 def blocks(img, m, k=8):
     H, W = m.shape; out = []; idx = []
     for by in range(0, H, k):
@@ -76,11 +84,7 @@ def main():
     q = load(sys.argv[1])[..., :3]; A = load(sys.argv[2]); B = load(sys.argv[3])
     s = json.load(open(sys.argv[4]))
     alpha = np.minimum(A[..., 3], B[..., 3]); A = A[..., :3]; B = B[..., :3]
-    n, hit = normals(s)
-    m = hit & (alpha > 0.999)
-    # erode by one pixel (edge pixels mix background)
-    e = m.copy(); e[1:] &= m[:-1]; e[:-1] &= m[1:]; e[:, 1:] &= m[:, :-1]; e[:, :-1] &= m[:, 1:]
-    m = e
+    n, m = compared(s, alpha)
     spec = specular(s)
     A = A - spec; B = B - spec
     r = 0.5 * (A + B); noise = 0.5 * (A - B)

@@ -22,10 +22,7 @@ for name, half in (("s1", imgs[0::2]), ("s2", imgs[1::2])):
     merged[..., 3] = np.min([im[..., 3] for im in half], 0)
     mi.Bitmap(merged.astype(np.float32)).write(f"ref/{case}-{name}.exr")
 s = json.load(open(f"ref/{case}.json"))
-n, hit = normals(s)
-alpha = np.min([im[..., 3] for im in imgs], 0)
-m = hit & (alpha > 0.999)
-e = m.copy(); e[1:] &= m[:-1]; e[:-1] &= m[1:]; e[:, 1:] &= m[:, :-1]; e[:, :-1] &= m[:, 1:]
+_, e = compared(s, np.min([im[..., 3] for im in imgs], 0))
 spec = specular(s)
 means = np.array([(im[..., :3] - spec)[e].mean(0) for im in imgs])
 se = means.std(0, ddof=1) / np.sqrt(len(imgs)) / means.mean(0)
