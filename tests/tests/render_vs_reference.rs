@@ -4,7 +4,7 @@
 //! against Mitsuba 3's volumetric path tracer on the presets' exported
 //! medium in its dielectric boundary (`volpathmis`, scalar_rgb; 6 to 16
 //! seeds of 1,024 spp for skin1 and apple lit by the sun and ketchup lit
-//! from behind, 2 x 512 spp for the others: the JSON's `reference` says
+//! from the front and behind, 2 x 512 spp for the others: the JSON's `reference` says
 //! which, and `mean_relative_se` how uncertain its mean is). The
 //! references are cached, reduced to what the comparison needs,
 //! in tests/data/render_reference/CASE.json (made by
@@ -252,7 +252,7 @@ fn check(case: &str, channels: &[usize], mean: f64, term: f64, blocks: f64) {
 
 #[test]
 fn apple_sphere_front_lit_matches_the_path_tracer() {
-    check("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03);
+    check("apple-front", &[0, 1, 2], 0.03, 0.05, 0.03);
 }
 
 #[test]
@@ -372,7 +372,7 @@ fn skin1_sphere_front_lit_needs_radiative_transfer() {
 
 /// ketchup's red (a' 0.75, s'_t 0.24 mm^-1) lit from the front and from
 /// behind: the dipole's image lies 18 mm above the entry on a 20 mm sphere,
-/// 19 % bright front-lit. Green and blue (a' 0.07, 0.02) are left out: the
+/// 21 % bright front-lit. Green and blue (a' 0.07, 0.02) are left out: the
 /// reference's blocks there are noise at the 70-200 % level, and its mean
 /// lit from behind is uncertain by half.
 #[test]
@@ -397,7 +397,7 @@ fn every_cached_case_at_default_quality() {
         ("skin1-side", &[0, 1, 2], 0.04, 0.05, 0.06),
         ("skin1-back", &[0, 1, 2], 0.22, 0.2, f64::INFINITY),
         ("skin1-env", &[0, 1, 2], 0.04, 1.0, 0.04),
-        ("apple-front", &[0, 1, 2], 0.03, 0.1, 0.03),
+        ("apple-front", &[0, 1, 2], 0.03, 0.05, 0.03),
         ("apple-back", &[0, 1], 0.03, 0.05, 0.13),
         ("marble-front", &[0, 1, 2], 0.03, 0.1, 0.03),
         ("ketchup-front", &[0], 0.03, f64::INFINITY, 0.05),
