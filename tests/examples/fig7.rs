@@ -19,17 +19,18 @@
 //!    difference gives the Monte Carlo noise). Radiance in W sr^-1 m^-2.
 //! 3. Model: the slab's top face (the sim's lamps light only the top; its
 //!    sides and bottom are black) as a plane in the sample frame, the texture
-//!    registered to the rectified grid it was measured on (texel (i, j) at
-//!    origin + (i, j) texel_mm, tiled outside, no quilting), a directional
+//!    registered to the rectified texels it was measured on (the model's
+//!    texel (i, j) is rectified texel (i0 + i, j0 + j), fit.json's window;
+//!    tiled outside, no quilting), a directional
 //!    light with the lamp's true direction and irradiance (W m^-2 normal to
 //!    the light), rendered through the true camera (pose, intrinsics, radial
 //!    distortion) with `render_scene_camera`. The model's LRF is per unit
 //!    irradiance and R_d per unit incident flux, so the render is in W sr^-1
 //!    m^-2 as well: no scale factor anywhere.
-//! 4. Compare over the pixels that see the measured patch (one texel in from
-//!    its edge): RMSE absolute and relative, mean ratio, Monte Carlo noise
-//!    of the path tracer, RMSE of 4 x 4 and 8 x 8 pixel block means, the
-//!    model's local (LRF) share. Writes `OUT/fig7/` (EXR of
+//! 4. Compare over the pixels that see the patch the model covers (one
+//!    texel in from its edge): RMSE absolute and relative, mean ratio,
+//!    Monte Carlo noise of the path tracer, RMSE of 4 x 4 and 8 x 8 pixel
+//!    block means, the model's local (LRF) share. Writes `OUT/fig7/` (EXR of
 //!    both, `compare.png`, `summary.json`) and `--png` if given.
 
 use std::error::Error;
@@ -340,6 +341,19 @@ fn main() -> Res<()> {
     let model = MaterialModel::load(&model_dir)?;
     let index = qhm_imaging::rectified::read_index(&a.out.join("capture/rectified"))?;
     let grid = index.grid;
+    // The model covers the texels every view's stripes reach (fit.json's
+    // window within the rectified grid): texel (0, 0) of its texture is
+    // grid texel (i0, j0).
+    let [i0, j0, ww, wh] = model
+        .diagnostics
+        .as_ref()
+        .and_then(|d| d.window)
+        .unwrap_or([0, 0, grid.width, grid.height]);
+    let tm = grid.texel_mm;
+    let (ox, oy) = (
+        grid.origin_mm[0] + i0 as f64 * tm,
+        grid.origin_mm[1] + j0 as f64 * tm,
+    );
 
     // 2. The world as captured, and the new light.
     let desc = SceneDesc::load(&a.sample)?;
@@ -411,7 +425,7 @@ fn main() -> Res<()> {
     // 3. The model on the slab's top face, same camera and light.
     let mesh = top_face(
         [size[0] as f32 / 2.0, size[1] as f32 / 2.0],
-        [grid.origin_mm[0] as f32, grid.origin_mm[1] as f32],
+        [ox as f32, oy as f32],
     )?;
     let mut scene = Scene::new(mesh);
     scene.lights = vec![Light::Directional {
@@ -447,11 +461,7 @@ fn main() -> Res<()> {
 
     // 4. The compared region: pixels whose centre sees the measured patch,
     // one texel in from its edge.
-    let (ox, oy, tm) = (grid.origin_mm[0], grid.origin_mm[1], grid.texel_mm);
-    let (x1, y1) = (
-        ox + grid.width as f64 * tm - tm,
-        oy + grid.height as f64 * tm - tm,
-    );
+    let (x1, y1) = (ox + ww as f64 * tm - tm, oy + wh as f64 * tm - tm);
     let mask: Vec<bool> = (0..(w * h) as usize)
         .map(|i| {
             let r = camera_ray((i % w as usize) as f64 + 0.5, (i / w as usize) as f64 + 0.5);
@@ -494,8 +504,8 @@ fn main() -> Res<()> {
         a.lamp,
         a.arc_deg,
         a.turntable_deg,
-        grid.width as f64 * tm,
-        grid.height as f64 * tm
+        ww as f64 * tm,
+        wh as f64 * tm
     );
     println!(
         "{:<10} {:>11} {:>11} {:>7} {:>10} {:>7} {:>10} {:>8} {:>7} {:>7} {:>7} {:>6}",
