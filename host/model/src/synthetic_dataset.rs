@@ -277,23 +277,33 @@ mod tests {
     use super::*;
     use crate::fit::{FitOptions, fit_capture};
 
-    #[test]
-    fn fit_recovers_a_synthetic_capture() {
-        let truth = DipoleParams {
+    /// The medium the tests' synthetic captures are rendered with.
+    fn truth() -> DipoleParams {
+        DipoleParams {
             alpha_prime: [0.995, 0.98, 0.9],
             sigma_t_prime: [1.2, 1.8, 2.6],
             eta: 1.3,
             model: crate::subsurface::ProfileModel::Dipole,
-        };
-        let spec = SynthSpec::small(truth);
+        }
+    }
+
+    /// `spec` written and fitted. The synthetic capture is the dipole's
+    /// world, so it is fitted with it.
+    fn fitted(spec: &SynthSpec) -> crate::MaterialModel {
         let dir = tempfile::tempdir().unwrap();
-        write_synthetic(dir.path(), &spec).unwrap();
-        // The synthetic capture is the dipole's world, so it is fitted with it.
+        write_synthetic(dir.path(), spec).unwrap();
         let opts = FitOptions {
             model: crate::subsurface::ProfileModel::Dipole,
             ..FitOptions::default()
         };
-        let (model, _) = fit_capture(dir.path(), &opts).unwrap();
+        fit_capture(dir.path(), &opts).unwrap().0
+    }
+
+    #[test]
+    fn fit_recovers_a_synthetic_capture() {
+        let truth = truth();
+        let spec = SynthSpec::small(truth);
+        let model = fitted(&spec);
         for c in 0..3 {
             let (a, s) = (model.dipole.alpha_prime[c], model.dipole.sigma_t_prime[c]);
             assert!(
@@ -362,22 +372,10 @@ mod tests {
     /// 7.0 %, which fails these bounds.
     #[test]
     fn f_v_keeps_the_truth_under_line_errors_and_noise() {
-        let truth = DipoleParams {
-            alpha_prime: [0.995, 0.98, 0.9],
-            sigma_t_prime: [1.2, 1.8, 2.6],
-            eta: 1.3,
-            model: crate::subsurface::ProfileModel::Dipole,
-        };
-        let mut spec = SynthSpec::small(truth);
+        let mut spec = SynthSpec::small(truth());
         spec.line_error_mm = 0.08;
         spec.stripe_noise = 0.02;
-        let dir = tempfile::tempdir().unwrap();
-        write_synthetic(dir.path(), &spec).unwrap();
-        let opts = FitOptions {
-            model: crate::subsurface::ProfileModel::Dipole,
-            ..FitOptions::default()
-        };
-        let (model, _) = fit_capture(dir.path(), &opts).unwrap();
+        let model = fitted(&spec);
         let [i0, j0, ww, wh] = model.diagnostics.as_ref().unwrap().window.unwrap();
         let (mut sum, mut n) = ([0.0f64; 3], 0.0);
         for &v in &spec.views {

@@ -224,7 +224,7 @@ fn exiting_view(
             .get(sorted.len() / 2)
             .map_or(f64::INFINITY, |m| REACH * m);
         for p in 0..w * h {
-            if wsum[p] > 0.0 && signal[p] > 0.0 && signal[p] >= floor {
+            if wsum[p] > 0.0 && signal[p] >= floor {
                 out[p][c] = level * num[p] / wsum[p];
             }
         }
