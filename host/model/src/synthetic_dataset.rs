@@ -299,6 +299,24 @@ mod tests {
         fit_capture(dir.path(), &opts).unwrap().0
     }
 
+    /// The texels the model covers, those the scans reach (fit.json's
+    /// window).
+    fn window(model: &crate::MaterialModel) -> [u32; 4] {
+        model
+            .diagnostics
+            .as_ref()
+            .and_then(|d| d.window)
+            .expect("the fit records its window")
+    }
+
+    /// The model's texture coordinates of rectified texel (i, j).
+    fn uv([i0, j0, ww, wh]: [u32; 4], i: usize, j: usize) -> [f32; 2] {
+        [
+            ((i - i0 as usize) as f32 + 0.5) / ww as f32,
+            ((j - j0 as usize) as f32 + 0.5) / wh as f32,
+        ]
+    }
+
     #[test]
     fn fit_recovers_a_synthetic_capture() {
         let truth = truth();
@@ -325,18 +343,8 @@ mod tests {
         // f_v at a view, at a few texels.
         let v = spec.views[2];
         let vf = [v[0] as f32, v[1] as f32, v[2] as f32];
-        // The model covers the texels the scans reach (fit.json's window).
-        let [i0, j0, ww, wh] = model
-            .diagnostics
-            .as_ref()
-            .and_then(|d| d.window)
-            .expect("the fit records its window");
-        let at = |i: usize, j: usize| {
-            [
-                ((i - i0 as usize) as f32 + 0.5) / ww as f32,
-                ((j - j0 as usize) as f32 + 0.5) / wh as f32,
-            ]
-        };
+        let window = window(&model);
+        let at = |i: usize, j: usize| uv(window, i, j);
         for &(i, j) in &[(12usize, 4usize), (20, 20), (30, 7)] {
             let uv = at(i, j);
             let got = model.exiting(uv, vf);
@@ -376,17 +384,14 @@ mod tests {
         spec.line_error_mm = 0.08;
         spec.stripe_noise = 0.02;
         let model = fitted(&spec);
-        let [i0, j0, ww, wh] = model.diagnostics.as_ref().unwrap().window.unwrap();
+        let window = window(&model);
+        let [i0, j0, ww, wh] = window;
         let (mut sum, mut n) = ([0.0f64; 3], 0.0);
         for &v in &spec.views {
             let vf = [v[0] as f32, v[1] as f32, v[2] as f32];
             for j in j0 as usize..(j0 + wh) as usize {
                 for i in i0 as usize..(i0 + ww) as usize {
-                    let uv = [
-                        ((i - i0 as usize) as f32 + 0.5) / ww as f32,
-                        ((j - j0 as usize) as f32 + 0.5) / wh as f32,
-                    ];
-                    let got = model.exiting(uv, vf);
+                    let got = model.exiting(uv(window, i, j), vf);
                     let want = spec.fv(i, j, v);
                     for c in 0..3 {
                         sum[c] += (got[c] as f64 / want - 1.0).powi(2);

@@ -131,20 +131,24 @@ fn exiting_view(
         let [d0, d1] = fv_range[c];
         let [lo, hi] = channels[c].fit.range_mm;
         // Every (stripe, texel) of this channel within [d0, d1] of the
-        // stripe's line: (texel index, signed distance, L, flux per mm).
-        let each = |f: &mut dyn FnMut(usize, f64, f64, f64)| {
-            for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
-                for j in 0..h {
-                    for i in 0..w {
-                        let l = img.get(i, j)[c] as f64;
-                        let sgn = s.signed_distance(grid.centre(i, j));
-                        if l.is_finite() && sgn.abs() >= d0 && sgn.abs() <= d1 {
-                            f(j * w + i, sgn, l, s.flux_per_mm);
-                        }
+        // stripe's line, read once.
+        let mut samples = Vec::new();
+        for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
+            for j in 0..h {
+                for i in 0..w {
+                    let l = img.get(i, j)[c] as f64;
+                    let sgn = s.signed_distance(grid.centre(i, j));
+                    if l.is_finite() && sgn.abs() >= d0 && sgn.abs() <= d1 {
+                        samples.push(Sample {
+                            texel: j * w + i,
+                            sgn,
+                            l,
+                            flux: s.flux_per_mm,
+                        });
                     }
                 }
             }
-        };
+        }
         // Signed distance bins an eighth of a texel wide: each side of the
         // line has its own profile (a view's line sits a little off the
         // light's, towards the camera, and its blur is not symmetric), and
@@ -159,7 +163,7 @@ fn exiting_view(
         let (mut sl, mut sm) = (vec![0.0; nb], vec![0.0; nb]);
         let (mut sd, mut n) = (vec![0.0; nb], vec![0.0; nb]);
         let (mut a_num, mut a_den) = (0.0, 0.0);
-        each(&mut |_, sgn, l, flux| {
+        for &Sample { sgn, l, flux, .. } in &samples {
             let d = sgn.abs();
             let b = bin(sgn);
             sl[b] += l / flux;
@@ -170,7 +174,7 @@ fn exiting_view(
                 a_num += l;
                 a_den += tables[c].texel_mean(d, tx) * flux / PI;
             }
-        });
+        }
         if !(a_den > 0.0) {
             continue;
         }
@@ -199,23 +203,26 @@ fn exiting_view(
             .collect();
         let profile =
             |sgn: f64| tables[c].texel_mean(sgn.abs(), tx) * piecewise_linear(&smooth, sgn);
-        let scatter = photon_relative_scatter(&each, &profile, w * h, d1, tx);
+        // Each sample's expected signal flux Ī; those with none drop out.
+        let expected: Vec<(&Sample, f64)> = samples
+            .iter()
+            .map(|s| (s, s.flux * profile(s.sgn)))
+            .filter(|&(_, e)| e > 0.0)
+            .collect();
+        let scatter = photon_relative_scatter(&expected, w * h, d1, tx);
         // Σ w r, Σ w, and the expected signal Σ flux Ī (for the reach).
         let (mut num, mut wsum, mut signal) =
             (vec![0.0; w * h], vec![0.0; w * h], vec![0.0; w * h]);
-        each(&mut |p, sgn, l, flux| {
-            let e = flux * profile(sgn);
-            if e > 0.0 {
-                let wt = if scatter.is_empty() {
-                    e
-                } else {
-                    e / piecewise_linear(&scatter, sgn.abs())
-                };
-                num[p] += wt * l / e;
-                wsum[p] += wt;
-                signal[p] += e;
-            }
-        });
+        for &(s, e) in &expected {
+            let wt = if scatter.is_empty() {
+                e
+            } else {
+                e / piecewise_linear(&scatter, s.sgn.abs())
+            };
+            num[s.texel] += wt * s.l / e;
+            wsum[s.texel] += wt;
+            signal[s.texel] += e;
+        }
         // Where the scans reach: a texel whose expected signal is under
         // REACH of the median texel's is left unmeasured.
         let mut sorted: Vec<f64> = signal.iter().copied().filter(|d| *d > 0.0).collect();
@@ -243,8 +250,7 @@ fn exiting_view(
 /// least [`NOISE_FLOOR`] of a bin's scatter counts. Empty where no bin
 /// has a scatter.
 fn photon_relative_scatter(
-    each: &dyn Fn(&mut dyn FnMut(usize, f64, f64, f64)),
-    profile: &dyn Fn(f64) -> f64,
+    expected: &[(&Sample, f64)],
     texels: usize,
     d1: f64,
     texel_mm: f64,
@@ -255,19 +261,16 @@ fn photon_relative_scatter(
     let (mut r1, mut r2, mut se, mut n) =
         (vec![0.0; nb], vec![0.0; nb], vec![0.0; nb], vec![0.0; nb]);
     let (mut t1, mut t2, mut tn) = (vec![0.0; texels], vec![0.0; texels], vec![0.0; texels]);
-    each(&mut |p, sgn, l, flux| {
-        let e = flux * profile(sgn);
-        if e > 0.0 {
-            let (b, r) = (((sgn.abs() / bw) as usize).min(nb - 1), l / e);
-            r1[b] += r;
-            r2[b] += r * r;
-            se[b] += e;
-            n[b] += 1.0;
-            t1[p] += r;
-            t2[p] += r * r;
-            tn[p] += 1.0;
-        }
-    });
+    for &(s, e) in expected {
+        let (b, r, p) = (((s.sgn.abs() / bw) as usize).min(nb - 1), s.l / e, s.texel);
+        r1[b] += r;
+        r2[b] += r * r;
+        se[b] += e;
+        n[b] += 1.0;
+        t1[p] += r;
+        t2[p] += r * r;
+        tn[p] += 1.0;
+    }
     let (mut shared, mut mean, mut m) = (0.0, 0.0, 0.0);
     for p in (0..texels).filter(|&p| tn[p] >= 2.0) {
         shared += (t1[p] * t1[p] - t2[p]) / (tn[p] * (tn[p] - 1.0));
@@ -287,6 +290,15 @@ fn photon_relative_scatter(
             (noise > 0.0).then(|| ((b as f64 + 0.5) * bw, noise * se[b] / n[b]))
         })
         .collect()
+}
+
+/// One texel of one stripe image: its index in the window, its signed
+/// distance from the stripe's line (mm), L, and the stripe's flux per mm.
+struct Sample {
+    texel: usize,
+    sgn: f64,
+    l: f64,
+    flux: f64,
 }
 
 /// y at x on the polyline through `pts` (sorted by x, not empty), held
