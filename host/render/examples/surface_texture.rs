@@ -1,12 +1,14 @@
 //! The texture on a surface, measured (docs/render.md, "Texture on the
 //! surface"): the tangent field's frame jumps on a built-in object, and
 //! the seam energy of a model's texture synthesized on it under two sets of
-//! ten (light, view) pairs that no capture uses.
+//! ten (light, view) pairs that no capture uses, with the share of
+//! neighbour pairs across a cut and the mean contrast between neighbours.
 //!
-//!   cargo run --release -p qhm-render --example surface_texture -- MODEL_DIR [BUILTIN] [--seam-passes N]
+//!   cargo run --release -p qhm-render --example surface_texture -- MODEL_DIR [BUILTIN] [--seam-passes N] [--seed N]
 //!
 //! BUILTIN: slab, sphere, teapot (default) or bread. `--seam-passes` sets
-//! the synthesis's seam passes (the default unless given; 0 for none).
+//! the synthesis's seam passes (the default unless given; 0 for none),
+//! `--seed` its random seed.
 
 use std::path::Path;
 use std::time::Instant;
@@ -18,16 +20,26 @@ use qhm_render::texture_synthesis::{Features, SurfaceTexture, SynthSettings, dir
 fn main() {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let usage = || -> ! {
-        eprintln!("usage: surface_texture MODEL_DIR [slab|sphere|teapot|bread] [--seam-passes N]");
+        eprintln!(
+            "usage: surface_texture MODEL_DIR [slab|sphere|teapot|bread] [--seam-passes N] [--seed N]"
+        );
         std::process::exit(2)
     };
     let mut settings = SynthSettings::default();
-    if let Some(k) = args.iter().position(|a| a == "--seam-passes") {
-        settings.seam_passes = match args.get(k + 1).map(|v| v.parse()) {
+    let mut option = |name: &str| -> Option<u64> {
+        let k = args.iter().position(|a| a == name)?;
+        let value = match args.get(k + 1).map(|v| v.parse()) {
             Some(Ok(n)) => n,
             _ => usage(),
         };
         args.drain(k..k + 2);
+        Some(value)
+    };
+    if let Some(n) = option("--seam-passes") {
+        settings.seam_passes = n as usize;
+    }
+    if let Some(seed) = option("--seed") {
+        settings.seed = seed;
     }
     let Some(dir) = args.first() else { usage() };
     let object = args.get(1).map_or("teapot", String::as_str);
@@ -83,30 +95,36 @@ fn main() {
         }),
     ];
     println!(
-        "set  light (theta, phi)  view (theta, phi)  cut pairs  cut   interior  seam energy (cut / interior)"
+        "set  light (theta, phi)  view (theta, phi)  cut pairs (share)  cut   interior  seam energy (cut / interior)  neighbours"
     );
     let t = Instant::now();
     let mut worst = [0.0f64; 2];
+    let mut contrast = [0.0f64; 2];
     for (s, (name, pair)) in sets.iter().enumerate() {
         for k in 0..10 {
             let [li, lp, vi, vp] = pair(k as f32);
             let e = tex.seam_energy(&model, direction(li, lp), direction(vi, vp));
             worst[s] = worst[s].max(e.ratio());
+            contrast[s] += e.neighbour / 10.0;
             println!(
-                "{name}    ({li:4.1}, {:5.1})      ({vi:4.1}, {:5.1})      {:8}   {:.3} {:.3}     {:.3}",
+                "{name}    ({li:4.1}, {:5.1})      ({vi:4.1}, {:5.1})      {:8} ({:.2})    {:.3} {:.3}     {:.3}                         {:.3}",
                 lp % 360.0,
                 vp % 360.0,
                 e.cut_pairs,
+                e.cut_pairs as f64 / e.pairs.max(1) as f64,
                 e.cut,
                 e.inner,
-                e.ratio()
+                e.ratio(),
+                e.neighbour
             );
         }
     }
     println!(
-        "worst seam energy {:.3} (set A), {:.3} (set B); measured in {:.2} s",
+        "worst seam energy {:.3} (set A), {:.3} (set B); mean neighbour contrast {:.3} (A), {:.3} (B); measured in {:.2} s",
         worst[0],
         worst[1],
+        contrast[0],
+        contrast[1],
         t.elapsed().as_secs_f64()
     );
 }

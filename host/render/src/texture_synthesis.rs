@@ -651,7 +651,7 @@ impl SurfaceTexture {
             grid,
         };
         for _ in 0..s.seam_passes {
-            tex.place_seams(f, &order);
+            tex.place_seams(f, &order, radius);
         }
         tex
     }
@@ -662,16 +662,18 @@ impl SurfaceTexture {
 
     /// One pass over the points (in `order`) that moves the cuts between
     /// patches to where they show least, one point at a time: each point
-    /// takes, among its own coordinate and the continuations of its
-    /// neighbours' patches (pairs within the seam measure's 1.5 spacings),
-    /// the one whose cuts jump least beyond the texture's own variation
-    /// there. A seam shows less where the texture itself changes, as in the
-    /// gradient-weighted seam cost of graph-cut textures (Kwatra et al.
-    /// 2003). A cut pair (i, j) costs |F(c_i) - F(c_j)|^2 less the interior
+    /// takes, among its own coordinate and the continuations of the patches
+    /// of the points within `reach` (the synthesis's neighbourhood), the one
+    /// whose cuts with its neighbours (pairs within the seam measure's 1.5
+    /// spacings) jump least beyond the texture's own variation there. The
+    /// wider reach offers the patches just beyond the cut, whose edges may
+    /// fit better than those touching it. A seam shows less where the
+    /// texture itself changes, as in the gradient-weighted seam cost of
+    /// graph-cut textures (Kwatra et al. 2003). A cut pair (i, j) costs |F(c_i) - F(c_j)|^2 less the interior
     /// difference |F(c_i) - F(c_i + o_ij)|^2 from i's side, and the same
     /// from j's (`seam_energy`'s cut and interior terms, on the feature
     /// vectors); a pair that continues one patch costs nothing.
-    fn place_seams(&mut self, f: &Features, order: &[usize]) {
+    fn place_seams(&mut self, f: &Features, order: &[usize], reach: f32) {
         let source = self.source_box();
         let dim = f.dim;
         let r = 1.5 * self.spacing;
@@ -710,11 +712,17 @@ impl SurfaceTexture {
             }
             candidates.clear();
             candidates.push(self.coord[i]);
-            candidates.extend(
-                nb.iter()
-                    .map(|&(o_ij, _, cj)| cj - o_ij)
-                    .filter(|c| source.contains(*c)),
-            );
+            self.grid.within(&self.pos, p, reach, |j| {
+                if j != i && self.normal[j].dot(n) > 0.3 {
+                    let c = self.coord[j] - offset(p, n, t, self.pos[j], self.texel_mm);
+                    if source.contains(c) {
+                        candidates.push(c);
+                    }
+                }
+            });
+            // One candidate per patch; the point's own coordinate stays first.
+            candidates[1..].sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+            candidates.dedup_by(|a, b| a.distance_squared(*b) < 0.0625);
             let mut cost = |c: Vec2| -> f32 {
                 f.bilinear(c, &mut a);
                 nb.iter()
@@ -854,10 +862,10 @@ impl SurfaceTexture {
                 .sum()
         };
         let r = 1.5 * self.spacing;
-        let (cut, inner, pairs) = (0..self.pos.len())
+        let sums = (0..self.pos.len())
             .into_par_iter()
             .map(|i| {
-                let mut acc = (0.0f64, 0.0f64, 0usize);
+                let mut acc = SeamSums::default();
                 self.grid.within(&self.pos, self.pos[i], r, |j| {
                     if j == i || self.normal[j].dot(self.normal[i]) <= 0.3 {
                         return;
@@ -870,20 +878,48 @@ impl SurfaceTexture {
                         self.texel_mm,
                     );
                     let own = self.coord[i] + o;
+                    let jump = energy(&at[i], &at[j]);
+                    acc.all += jump;
+                    acc.pairs += 1;
                     if own.distance(self.coord[j]) <= 0.5 || !source.contains(own) {
                         return;
                     }
-                    acc.0 += energy(&at[i], &at[j]);
-                    acc.1 += energy(&at[i], &look(own));
-                    acc.2 += 1;
+                    acc.cut += jump;
+                    acc.inner += energy(&at[i], &look(own));
+                    acc.cut_pairs += 1;
                 });
                 acc
             })
-            .reduce(|| (0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+            .reduce(SeamSums::default, SeamSums::add);
+        let mean = |sum: f64, n: usize| sum / n.max(1) as f64;
         SeamEnergy {
-            cut_pairs: pairs,
-            cut: cut / pairs.max(1) as f64,
-            inner: inner / pairs.max(1) as f64,
+            cut_pairs: sums.cut_pairs,
+            cut: mean(sums.cut, sums.cut_pairs),
+            inner: mean(sums.inner, sums.cut_pairs),
+            pairs: sums.pairs,
+            neighbour: mean(sums.all, sums.pairs),
+        }
+    }
+}
+
+/// Running sums of [`SurfaceTexture::seam_energy`].
+#[derive(Clone, Copy, Debug, Default)]
+struct SeamSums {
+    cut: f64,
+    inner: f64,
+    cut_pairs: usize,
+    all: f64,
+    pairs: usize,
+}
+
+impl SeamSums {
+    fn add(a: SeamSums, b: SeamSums) -> SeamSums {
+        SeamSums {
+            cut: a.cut + b.cut,
+            inner: a.inner + b.inner,
+            cut_pairs: a.cut_pairs + b.cut_pairs,
+            all: a.all + b.all,
+            pairs: a.pairs + b.pairs,
         }
     }
 }
@@ -899,6 +935,11 @@ pub struct SeamEnergy {
     /// Mean difference between the same first points and their interior
     /// neighbours at the same offsets.
     pub inner: f64,
+    /// Ordered neighbour pairs in all, across a cut or not.
+    pub pairs: usize,
+    /// Mean difference between neighbours on the surface, over all pairs:
+    /// the surface texture's contrast, which cuts must not raise.
+    pub neighbour: f64,
 }
 
 impl SeamEnergy {
@@ -1008,22 +1049,35 @@ mod tests {
     fn seam_passes_hide_the_cuts_under_unseen_directions() {
         let m = Blobs::new(48);
         let mesh = sphere(20.0, 96, 48).unwrap();
-        let worst = |tex: &SurfaceTexture| {
-            unseen_pairs()
+        // (worst seam energy, mean contrast between neighbours) over the pairs
+        let measure = |tex: &SurfaceTexture| {
+            let e: Vec<SeamEnergy> = unseen_pairs()
                 .into_iter()
-                .map(|(wi, wo)| tex.seam_energy(&m, wi, wo).ratio())
-                .fold(0.0, f64::max)
+                .map(|(wi, wo)| tex.seam_energy(&m, wi, wo))
+                .collect();
+            let worst = e.iter().map(SeamEnergy::ratio).fold(0.0, f64::max);
+            (
+                worst,
+                e.iter().map(|e| e.neighbour).sum::<f64>() / e.len() as f64,
+            )
         };
-        let placed = worst(&synthesized(&mesh, &m));
+        let (placed, contrast) = measure(&synthesized(&mesh, &m));
         // without the seam passes the same synthesis leaves stronger cuts
         let unplaced = SynthSettings {
             seam_passes: 0,
             ..SynthSettings::default()
         };
-        let matched_only = worst(&synthesized_with(&mesh, &m, &unplaced));
+        let (matched_only, matched_contrast) = measure(&synthesized_with(&mesh, &m, &unplaced));
+        // Candidates from the whole matched neighbourhood: taking them only
+        // from the pairs the cost counts (1.5 spacings) leaves 0.60.
         assert!(
-            placed <= 1.1 && matched_only > 1.1,
+            placed <= 0.55 && matched_only > 1.1,
             "{placed} vs {matched_only}"
+        );
+        // More, weaker cuts must not make the texture rougher.
+        assert!(
+            contrast <= matched_contrast,
+            "{contrast} vs {matched_contrast}"
         );
     }
 
