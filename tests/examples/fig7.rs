@@ -344,11 +344,7 @@ fn main() -> Res<()> {
     // The model covers the texels every view's stripes reach (fit.json's
     // window within the rectified grid): texel (0, 0) of its texture is
     // grid texel (i0, j0).
-    let [i0, j0, ww, wh] = model
-        .diagnostics
-        .as_ref()
-        .and_then(|d| d.window)
-        .unwrap_or([0, 0, grid.width, grid.height]);
+    let [i0, j0, ww, wh] = model.window().unwrap_or([0, 0, grid.width, grid.height]);
     let tm = grid.texel_mm;
     let (ox, oy) = (
         grid.origin_mm[0] + i0 as f64 * tm,

@@ -87,9 +87,7 @@ fn main() {
 fn lamp_images(model: &MaterialModel, data: &Rectified) -> Vec<Texture> {
     let grid = data.index.grid;
     let [i0, j0, w, h] = model
-        .diagnostics
-        .as_ref()
-        .and_then(|d| d.window)
+        .window()
         .unwrap_or([0, 0, grid.width, grid.height])
         .map(|x| x as usize);
     data.index

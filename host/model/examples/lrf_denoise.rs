@@ -81,9 +81,7 @@ fn main() {
     }
     println!("samples: light and view directions within {worst:.2} degrees");
     let window = |m: &MaterialModel| {
-        m.diagnostics
-            .as_ref()
-            .and_then(|d| d.window)
+        m.window()
             .unwrap_or([0, 0, m.width, m.height])
             .map(|x| x as i64)
     };

@@ -204,6 +204,12 @@ pub struct MaterialModel {
 }
 
 impl MaterialModel {
+    /// The texels of the rectified window the fit covered, [i0, j0, width,
+    /// height] ([`FitDiagnostics::window`]); None for a model without one.
+    pub fn window(&self) -> Option<[u32; 4]> {
+        self.diagnostics.as_ref().and_then(|d| d.window)
+    }
+
     /// A homogeneous material with a flat smooth surface: f = T(θ)/T(0),
     /// f_v = 1, LRF = 0, a 1×1 texture of 1 mm.
     pub fn homogeneous(dipole: DipoleParams) -> Self {

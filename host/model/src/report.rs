@@ -129,7 +129,7 @@ fn lamp_images(model: &MaterialModel, idx: &[usize]) -> (Vec<Texture>, String) {
             }
             let mut t = data.read_image(&e.file).ok()?;
             // The model covers only the window its scans reach.
-            if let Some([i0, j0, w, h]) = model.diagnostics.as_ref().and_then(|d| d.window) {
+            if let Some([i0, j0, w, h]) = model.window() {
                 let (i0, j0, w, h) = (i0 as usize, j0 as usize, w as usize, h as usize);
                 if i0 + w > t.width || j0 + h > t.height {
                     return None;

@@ -302,11 +302,7 @@ mod tests {
     /// The texels the model covers, those the scans reach (fit.json's
     /// window).
     fn window(model: &crate::MaterialModel) -> [u32; 4] {
-        model
-            .diagnostics
-            .as_ref()
-            .and_then(|d| d.window)
-            .expect("the fit records its window")
+        model.window().expect("the fit records its window")
     }
 
     /// The model's texture coordinates of rectified texel (i, j).
