@@ -131,7 +131,7 @@ fn exiting_view(
         let [d0, d1] = fv_range[c];
         let [lo, hi] = channels[c].fit.range_mm;
         // Every (stripe, texel) of this channel within [d0, d1] of the
-        // stripe's line, read once.
+        // stripe's line, read once, with the model's profile there.
         let mut samples = Vec::new();
         for (s, img) in images.iter().filter(|(s, _)| s.channel as usize == c) {
             for j in 0..h {
@@ -144,6 +144,7 @@ fn exiting_view(
                             sgn,
                             l,
                             flux: s.flux_per_mm,
+                            model: tables[c].texel_mean(sgn.abs(), tx),
                         });
                     }
                 }
@@ -163,16 +164,23 @@ fn exiting_view(
         let (mut sl, mut sm) = (vec![0.0; nb], vec![0.0; nb]);
         let (mut sd, mut n) = (vec![0.0; nb], vec![0.0; nb]);
         let (mut a_num, mut a_den) = (0.0, 0.0);
-        for &Sample { sgn, l, flux, .. } in &samples {
+        for &Sample {
+            sgn,
+            l,
+            flux,
+            model,
+            ..
+        } in &samples
+        {
             let d = sgn.abs();
             let b = bin(sgn);
             sl[b] += l / flux;
-            sm[b] += tables[c].texel_mean(d, tx);
+            sm[b] += model;
             sd[b] += sgn;
             n[b] += 1.0;
             if d >= lo && d <= hi {
                 a_num += l;
-                a_den += tables[c].texel_mean(d, tx) * flux / PI;
+                a_den += model * flux / PI;
             }
         }
         if !(a_den > 0.0) {
@@ -201,12 +209,11 @@ fn exiting_view(
                 }
             })
             .collect();
-        let profile =
-            |sgn: f64| tables[c].texel_mean(sgn.abs(), tx) * piecewise_linear(&smooth, sgn);
-        // Each sample's expected signal flux Ī; those with none drop out.
+        // Each sample's expected signal flux Ī, Ī = I_D g; those with none
+        // drop out.
         let expected: Vec<(&Sample, f64)> = samples
             .iter()
-            .map(|s| (s, s.flux * profile(s.sgn)))
+            .map(|s| (s, s.flux * s.model * piecewise_linear(&smooth, s.sgn)))
             .filter(|&(_, e)| e > 0.0)
             .collect();
         let scatter = photon_relative_scatter(&expected, w * h, d1, tx);
@@ -293,12 +300,14 @@ fn photon_relative_scatter(
 }
 
 /// One texel of one stripe image: its index in the window, its signed
-/// distance from the stripe's line (mm), L, and the stripe's flux per mm.
+/// distance from the stripe's line (mm), L, the stripe's flux per mm, and
+/// the model's profile I_D there (averaged over the texel).
 struct Sample {
     texel: usize,
     sgn: f64,
     l: f64,
     flux: f64,
+    model: f64,
 }
 
 /// y at x on the polyline through `pts` (sorted by x, not empty), held
