@@ -299,12 +299,6 @@ mod tests {
         fit_capture(dir.path(), &opts).unwrap().0
     }
 
-    /// The texels the model covers, those the scans reach (fit.json's
-    /// window).
-    fn window(model: &crate::MaterialModel) -> [u32; 4] {
-        model.window().expect("the fit records its window")
-    }
-
     /// The model's texture coordinates of rectified texel (i, j).
     fn uv([i0, j0, ww, wh]: [u32; 4], i: usize, j: usize) -> [f32; 2] {
         [
@@ -339,7 +333,7 @@ mod tests {
         // f_v at a view, at a few texels.
         let v = spec.views[2];
         let vf = [v[0] as f32, v[1] as f32, v[2] as f32];
-        let window = window(&model);
+        let window = model.window().expect("the fit records its window");
         let at = |i: usize, j: usize| uv(window, i, j);
         for &(i, j) in &[(12usize, 4usize), (20, 20), (30, 7)] {
             let uv = at(i, j);
@@ -380,7 +374,7 @@ mod tests {
         spec.line_error_mm = 0.08;
         spec.stripe_noise = 0.02;
         let model = fitted(&spec);
-        let window = window(&model);
+        let window = model.window().expect("the fit records its window");
         let [i0, j0, ww, wh] = window;
         let (mut sum, mut n) = ([0.0f64; 3], 0.0);
         for &v in &spec.views {
